@@ -1,0 +1,50 @@
+"""The Zenoh session every role opens: an embedded router on one host, clients elsewhere.
+
+No separate ``zenohd`` binary is needed: the launcher (or any one process) opens a session
+in router mode listening on ``tcp/127.0.0.1:7447``; every role connects to it as a client
+with multicast scouting off, so nothing leaks onto the LAN. Across machines the same flags
+point at a router on the hub host (``--listen tcp/0.0.0.0:7447`` there, ``--connect
+tcp/HUB:7447`` elsewhere).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import zenoh
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+@dataclass
+class FabricConfig:
+    """How a process joins the Zenoh fabric."""
+
+    connect: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])  #: router endpoints clients dial
+    listen: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])  #: endpoints the router listens on
+    shared_memory: bool = True  #: Zenoh's same-host shared-memory transport (off measures the TCP path)
+
+
+def zenoh_config(fabric: FabricConfig, mode: str = "client") -> zenoh.Config:
+    """Build the Zenoh config for ``mode`` "client" (every role) or "router" (the hub)."""
+    if mode not in ("client", "router", "peer"):
+        raise ValueError(f"unknown zenoh mode {mode!r}")
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    if mode == "router":
+        config.insert_json5("listen/endpoints", json.dumps(list(fabric.listen)))
+    else:
+        config.insert_json5("connect/endpoints", json.dumps(list(fabric.connect)))
+    config.insert_json5("transport/shared_memory/enabled", json.dumps(bool(fabric.shared_memory)))
+    return config
+
+
+def open_session(fabric: FabricConfig, mode: str = "client") -> zenoh.Session:
+    """Open a session; a client fails fast with a clear message if no router answers."""
+    try:
+        return zenoh.open(zenoh_config(fabric, mode))
+    except zenoh.ZError as exc:
+        where = fabric.listen if mode == "router" else fabric.connect
+        raise ConnectionError(f"cannot open a zenoh {mode} session on {where}: {exc}") from None
