@@ -51,6 +51,8 @@ class WeightsUpdate:
     learner_step: int  #: update() calls done when the snapshot was taken
     tensors: dict[str, np.ndarray]  #: parameter name -> array (float32, or float16 to halve the size)
     config_digest: str = ""  #: hash of the network config, so an actor can refuse a mismatch
+    published_at: float = 0.0  #: sender's wall clock (s since the epoch): receivers measure broadcast latency
+    env_steps: int = 0  #: environment transitions the replay had received when published (for learning curves)
 
 
 @dataclass
@@ -135,6 +137,8 @@ def encode(message: Message) -> bytes:
             "version": message.version,
             "learner_step": message.learner_step,
             "config_digest": message.config_digest,
+            "published_at": message.published_at,
+            "env_steps": message.env_steps,
         }
         return encode_frame(Kind.WEIGHTS, fields, message.tensors)
     if isinstance(message, Status):
@@ -218,6 +222,8 @@ def _decode_weights(fields, arrays) -> WeightsUpdate:
         learner_step=require(fields, "learner_step", int),
         tensors=arrays,
         config_digest=require(fields, "config_digest", str),
+        published_at=float(require(fields, "published_at", (int, float))),
+        env_steps=require(fields, "env_steps", int),
     )
 
 

@@ -1,0 +1,175 @@
+"""An actor: one task environment plus the Q-attention cascade on one CPU core.
+
+Acts with the newest weights (swapped in between episodes, never mid-episode, so every
+episode has one policy version), executes each next-best pose through the control agent,
+and hands finished episodes to the outbox, which delivers them at least once.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from actors.config import ActorConfig
+from actors.outbox import Outbox
+from actors.weights import WeightsFollower, tensors_from_update
+from protocol.episode import Episode, stack_observations
+from protocol.fabric import open_session
+from protocol.heartbeat import Heartbeat
+from protocol.observation import Observation
+from protocol.role import RoleContext
+from qattention.agent import C2FARM
+from qattention.batch import ObservationBatch
+from qattention.config import QAttentionConfig, network_digest
+
+log = logging.getLogger("actor")
+
+
+@dataclass
+class Rollout:
+    """What one episode produced, before it becomes a wire ``Episode``."""
+
+    observations: list[Observation]
+    actions: list[np.ndarray] = field(default_factory=list)
+    rewards: list[float] = field(default_factory=list)
+    terminals: list[bool] = field(default_factory=list)
+    success: bool = False
+    timeout: bool = False
+    reason: str = ""
+
+    @property
+    def total_reward(self) -> float:
+        return float(sum(self.rewards))
+
+
+def rollout(env, agent: C2FARM, cameras, seed: int, episode_length: int, explore: bool) -> Rollout:
+    """Play one episode: observe, choose a next-best pose, let the control agent execute it."""
+    obs = env.reset(seed=seed)
+    result = Rollout(observations=[obs])
+    for _ in range(episode_length):
+        act = agent.act(ObservationBatch.from_observations([obs], cameras, agent.device), explore=explore)
+        action = np.asarray(act.action[0], dtype=np.float32)
+        step = env.step(action)
+        obs = step.observation
+        result.observations.append(obs)
+        result.actions.append(action)
+        result.rewards.append(float(step.reward))
+        result.terminals.append(bool(step.terminal))
+        if step.terminal:
+            result.success = bool(step.success)
+            result.reason = "success" if step.success else ("unreachable" if step.unreachable else "failed")
+            return result
+    # Out of decisions: the reference treats a timeout as terminal too (c2farm_spec §10.5).
+    result.terminals[-1] = True
+    result.timeout, result.reason = True, "timeout"
+    return result
+
+
+def to_episode(r: Rollout, actor_id: str, episode_id: int, task: str, seed: int, version: int) -> Episode:
+    steps = len(r.actions)
+    return Episode(
+        actor_id=actor_id,
+        episode_id=episode_id,
+        task=task,
+        seed=seed,
+        is_demo=False,
+        success=r.success,
+        timeout=r.timeout,
+        observations=stack_observations(r.observations),
+        actions=np.stack(r.actions).astype(np.float32),
+        rewards=np.asarray(r.rewards, dtype=np.float32),
+        terminals=np.asarray(r.terminals, dtype=bool),
+        policy_versions=np.full(steps, version, dtype=np.int64),
+        info={"end": r.reason},
+    )
+
+
+def episode_seed(base_seed: int, instance: str, episode_id: int) -> int:
+    """A per-episode environment seed, reproducible from (run seed, actor, episode id)."""
+    return int(np.random.SeedSequence([base_seed, zlib.crc32(instance.encode()), episode_id]).generate_state(1)[0])
+
+
+class ActingPolicy:
+    """The cascade plus the weights it currently runs, swapped only when asked."""
+
+    def __init__(self, qconfig: QAttentionConfig, follower: WeightsFollower):
+        self.agent = C2FARM(qconfig, device=torch.device("cpu"))
+        self.follower = follower
+        self.swaps = 0
+
+    @property
+    def version(self) -> int:
+        return self.follower.version
+
+    def refresh(self) -> bool:
+        """Swap in the newest received weights, if any; True when the policy changed."""
+        update = self.follower.newer()
+        if update is None:
+            return False
+        self.agent.load_weights(tensors_from_update(update))
+        self.follower.version = update.version
+        self.swaps += 1
+        return True
+
+    def wait_for_first(self, timeout_s: float, stop) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not stop.is_set() and time.monotonic() < deadline:
+            self.follower.fetch_latest(timeout_s=2.0)
+            if self.refresh():
+                return
+            stop.wait(0.5)
+        if self.version == 0:
+            log.warning("no weights after %.0f s: acting with the initial random network", timeout_s)
+
+
+def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleContext) -> int:
+    """Collect episodes until stopped (or ``max_episodes``)."""
+    from actors.sim import PandaEnv  # the heavy simulator import stays out of the module's import
+
+    torch.set_num_threads(max(1, config.torch_threads))
+    torch.manual_seed(ctx.seed + zlib.crc32(ctx.instance.encode()))
+    qconfig = qconfig.replace(epsilon=config.epsilon)
+    env = PandaEnv(sim_config)
+    session = open_session(ctx.fabric)
+    follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
+    policy = ActingPolicy(qconfig, follower)
+    outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s, config.outbox_wait_s)
+    stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0}
+    # Episode ids must grow across restarts of this actor, or the replay would drop new episodes
+    # as duplicates: start from the clock in milliseconds (an episode takes far longer than 1 ms).
+    first_id = int(time.time() * 1000)
+
+    def counters() -> dict[str, float]:
+        return {**stats, **outbox.counters, "outbox_pending": outbox.pending, "weights_version": policy.version,
+                "weights_latency_s": follower.latency_s, "success_rate": stats["successes"] / max(1, stats["episodes"])}
+
+    heartbeat = Heartbeat(session, ctx.run_id, "actor", ctx.instance, counters=counters,
+                          info=lambda: {"task": sim_config.task})
+    try:
+        policy.wait_for_first(config.weights_wait_s, ctx.stop)
+        n = 0
+        while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
+            policy.refresh()
+            episode_id = first_id + n
+            seed = episode_seed(ctx.seed, ctx.instance, episode_id)
+            r = rollout(env, policy.agent, qconfig.cameras, seed, sim_config.episode_length, explore=True)
+            outbox.send(to_episode(r, ctx.instance, episode_id, sim_config.task, seed, policy.version))
+            outbox.resend_due()
+            n += 1
+            stats["episodes"] += 1
+            stats["env_steps"] += len(r.actions)
+            stats["successes"] += int(r.success)
+            stats["unreachable"] += int(r.reason == "unreachable")
+        outbox.flush(timeout_s=10.0)
+    finally:
+        heartbeat.close()
+        outbox.close()
+        follower.close()
+        session.close()
+        env.close()
+    return 0

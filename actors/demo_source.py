@@ -1,0 +1,84 @@
+"""Demonstrations into the replay: a demo source is just another actor.
+
+Each demo file becomes keyframe-to-keyframe episodes (keyframe discovery + demo
+augmentation, c2farm_spec §6.1-6.2), published through the same outbox and protocol as
+live episodes, flagged ``is_demo``. Episode ids are derived from the file order, so running
+the source again (after a crash or a replay restart) stores nothing twice.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from actors.config import ActorConfig
+from actors.demos.augmentation import demo_to_transitions
+from actors.demos.keyframes import discover_keyframes
+from actors.demos.mcap_io import load_demo
+from actors.outbox import Outbox
+from protocol.episode import Episode, stack_observations
+from protocol.fabric import open_session
+from protocol.heartbeat import Heartbeat
+from protocol.role import RoleContext
+
+log = logging.getLogger("demos")
+
+#: Room for augmented episodes per demo in the episode-id space.
+IDS_PER_DEMO = 10_000
+
+
+def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10) -> list[Episode]:
+    """The demo-augmented episodes of one demo file, ready to publish."""
+    demo = load_demo(path)
+    keyframes = discover_keyframes(demo.observations)
+    episodes = []
+    for i, part in enumerate(demo_to_transitions(demo.observations, keyframes, every_n=every_n)):
+        steps = len(part.actions)
+        episodes.append(Episode(
+            actor_id=actor_id,
+            episode_id=demo_index * IDS_PER_DEMO + i,
+            task=demo.task,
+            seed=demo.seed,
+            is_demo=True,
+            success=True,
+            timeout=False,
+            observations=stack_observations(part.observations),
+            actions=np.asarray(part.actions, dtype=np.float32),
+            rewards=np.asarray(part.rewards, dtype=np.float32),
+            terminals=np.asarray(part.terminals, dtype=bool),
+            policy_versions=np.full(steps, -1, dtype=np.int64),
+            info={"demo_file": path.name},
+        ))
+    return episodes
+
+
+def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10, limit: int = 0) -> int:
+    """Publish every demo in ``demo_dir`` (the first ``limit`` if set) and wait for the acks."""
+    files = sorted(Path(demo_dir).glob("*.mcap"))[: limit or None]
+    if not files:
+        log.error("no demo files (*.mcap) in %s", demo_dir)
+        return 1
+    session = open_session(ctx.fabric)
+    outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s,
+                    config.outbox_wait_s)
+    published = {"demos": 0, "demo_episodes": 0}
+    heartbeat = Heartbeat(session, ctx.run_id, "demos", ctx.instance,
+                          counters=lambda: {**published, **outbox.counters, "outbox_pending": outbox.pending})
+    try:
+        for index, path in enumerate(files):
+            if ctx.stop.is_set():
+                break
+            for episode in demo_episodes(path, index, ctx.instance, every_n):
+                outbox.send(episode)
+                published["demo_episodes"] += 1
+            published["demos"] += 1
+        flushed = outbox.flush(timeout_s=120.0)
+        log.info("published %d demo episodes from %d demos (%s)", published["demo_episodes"],
+                 published["demos"], "all acknowledged" if flushed else f"{outbox.pending} unacknowledged")
+        return 0 if flushed else 1
+    finally:
+        heartbeat.close()
+        outbox.close()
+        session.close()

@@ -1,0 +1,115 @@
+"""The evaluator: the greedy policy on a fixed, seeded set of episodes, once per weights version.
+
+The same seeds for every version make the success rates comparable along the run; the
+results go to the dashboard (heartbeat counters) and to ``runs/<id>/metrics/eval.csv``.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from actors.actor_loop import ActingPolicy, rollout
+from actors.config import ActorConfig
+from actors.weights import WeightsFollower, tensors_from_update
+from protocol.fabric import open_session
+from protocol.heartbeat import Heartbeat
+from protocol.role import RoleContext
+from qattention.config import QAttentionConfig, network_digest
+
+log = logging.getLogger("eval")
+
+EVAL_FIELDS = ["time", "weights_version", "learner_step", "env_steps", "episodes", "success_rate", "mean_return"]
+
+
+@dataclass
+class EvalResult:
+    weights_version: int
+    learner_step: int
+    env_steps: int
+    episodes: int
+    success_rate: float
+    mean_return: float
+
+
+def evaluate(env, policy: ActingPolicy, config: ActorConfig, episode_length: int, cameras,
+             record_dir: Path | None = None, stop=None) -> tuple[float, float, int]:
+    """Greedy rollouts on seeds ``eval_seed .. eval_seed + eval_episodes - 1``: (success, return, n)."""
+    successes, returns, done = 0, 0.0, 0
+    for i in range(config.eval_episodes):
+        if stop is not None and stop.is_set():
+            break
+        r = rollout(env, policy.agent, cameras, config.eval_seed + i, episode_length, explore=False)
+        successes += int(r.success)
+        returns += r.total_reward
+        done += 1
+        if record_dir is not None:
+            from actors.demos.mcap_io import write_episode_mcap
+
+            write_episode_mcap(record_dir / f"v{policy.version:06d}-seed{config.eval_seed + i}.mcap",
+                               r.observations, task=env.task_name, seed=config.eval_seed + i, success=r.success)
+    return successes / max(1, done), returns / max(1, done), done
+
+
+def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleContext) -> int:
+    """Evaluate each new weights version (at most one every ``eval_every_versions``) until stopped."""
+    from actors.sim import PandaEnv
+
+    torch.set_num_threads(max(1, config.torch_threads))
+    env = PandaEnv(sim_config)
+    session = open_session(ctx.fabric)
+    follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
+    policy = ActingPolicy(qconfig.replace(epsilon=0.0), follower)
+    latest: EvalResult | None = None
+    csv_path = ctx.run_dir / "metrics" / "eval.csv"
+    csv_path.parent.mkdir(parents=True, exist_ok=True)
+
+    def counters() -> dict[str, float]:
+        if latest is None:
+            return {"evaluations": 0}
+        return {"eval_success": latest.success_rate, "eval_return": latest.mean_return,
+                "eval_version": latest.weights_version, "eval_env_steps": latest.env_steps}
+
+    heartbeat = Heartbeat(session, ctx.run_id, "eval", ctx.instance, counters=counters,
+                          info=lambda: {"task": sim_config.task})
+    evaluated_version = 0
+    try:
+        while not ctx.stop.is_set():
+            follower.fetch_latest(timeout_s=2.0)
+            update = follower.newer()
+            if update is None or (evaluated_version and update.version < evaluated_version + config.eval_every_versions):
+                ctx.stop.wait(2.0)
+                continue
+            policy.agent.load_weights(tensors_from_update(update))
+            follower.version = update.version
+            record = ctx.run_dir / "eval" if config.record_eval else None
+            success, mean_return, n = evaluate(env, policy, config, sim_config.episode_length, qconfig.cameras,
+                                               record, ctx.stop)
+            if n < config.eval_episodes:
+                break  # stopped mid-evaluation: a partial result would bias the curve
+            evaluated_version = update.version
+            latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return)
+            _append_csv(csv_path, latest)
+            log.info("weights v%d (step %d, %d env steps): success %.0f%% over %d episodes",
+                     update.version, update.learner_step, update.env_steps, 100 * success, n)
+            heartbeat.publish()
+    finally:
+        heartbeat.close()
+        follower.close()
+        session.close()
+        env.close()
+    return 0
+
+
+def _append_csv(path: Path, result: EvalResult) -> None:
+    new = not path.exists()
+    with path.open("a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=EVAL_FIELDS)
+        if new:
+            writer.writeheader()
+        writer.writerow({"time": time.time(), **result.__dict__})

@@ -1,0 +1,105 @@
+"""At-least-once delivery of episodes to the replay server.
+
+Every episode stays in a bounded outbox until the replay server acknowledges it (stored or
+duplicate); unacknowledged ones are resent, so a replay restart loses nothing. The replay
+stores each (actor id, episode id) once, which turns at-least-once into exactly-once.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import OrderedDict
+
+import zenoh
+
+from protocol import keys
+from protocol.codec import ProtocolError
+from protocol.episode import Episode
+from protocol.messages import AckStatus, EpisodeAck, decode, encode
+
+log = logging.getLogger(__name__)
+
+
+class Outbox:
+    """Publishes episodes on ``episodes/<actor>`` and tracks acks on ``acks/<actor>``."""
+
+    def __init__(self, session: zenoh.Session, run_id: str, actor_id: str, size: int = 16,
+                 resend_after_s: float = 10.0, wait_s: float = 30.0):
+        self.actor_id = actor_id
+        self._size, self._resend_after, self._wait = size, resend_after_s, wait_s
+        self._publisher = session.declare_publisher(
+            keys.episodes(run_id, actor_id), congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        self._pending: OrderedDict[int, tuple[bytes, float]] = OrderedDict()
+        self._cond = threading.Condition()
+        self.counters = {"sent": 0, "acked": 0, "duplicates": 0, "rejected": 0, "resent": 0, "dropped": 0,
+                         "bad_acks": 0}
+        self._subscriber = session.declare_subscriber(keys.acks(run_id, actor_id), self._on_ack)
+
+    @property
+    def pending(self) -> int:
+        with self._cond:
+            return len(self._pending)
+
+    def send(self, episode: Episode) -> None:
+        """Publish ``episode`` and keep it until acknowledged. Waits (bounded) when the outbox is full."""
+        payload = encode(episode)
+        with self._cond:
+            if len(self._pending) >= self._size:
+                self._cond.wait_for(lambda: len(self._pending) < self._size, timeout=self._wait)
+            while len(self._pending) >= self._size:
+                dropped, _ = self._pending.popitem(last=False)
+                self.counters["dropped"] += 1
+                log.warning("outbox full for %.0f s: dropped episode %d unacknowledged", self._wait, dropped)
+            self._pending[episode.episode_id] = (payload, time.monotonic())
+        self._publisher.put(payload)
+        self.counters["sent"] += 1
+
+    def resend_due(self) -> int:
+        """Resend every episode unacknowledged for longer than ``resend_after_s``; returns how many."""
+        now = time.monotonic()
+        with self._cond:
+            due = [(eid, p) for eid, (p, sent) in self._pending.items() if now - sent >= self._resend_after]
+            for eid, payload in due:
+                self._pending[eid] = (payload, now)
+        for _, payload in due:
+            self._publisher.put(payload)
+        self.counters["resent"] += len(due)
+        return len(due)
+
+    def flush(self, timeout_s: float) -> bool:
+        """Wait until every episode is acknowledged (resending as due); True if the outbox emptied."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self._cond:
+                if self._cond.wait_for(lambda: not self._pending, timeout=min(1.0, self._resend_after)):
+                    return True
+            self.resend_due()
+        return self.pending == 0
+
+    def _on_ack(self, sample: zenoh.Sample) -> None:
+        try:
+            ack = decode(sample.payload.to_bytes(), expect=EpisodeAck)
+        except ProtocolError as exc:
+            self.counters["bad_acks"] += 1
+            log.warning("ignored a malformed ack: %s", exc)
+            return
+        if ack.actor_id != self.actor_id:
+            return
+        with self._cond:
+            if self._pending.pop(ack.episode_id, None) is None:
+                return
+            self._cond.notify_all()
+        if ack.status is AckStatus.STORED:
+            self.counters["acked"] += 1
+        elif ack.status is AckStatus.DUPLICATE:
+            self.counters["duplicates"] += 1
+        else:
+            self.counters["rejected"] += 1
+            log.error("replay rejected episode %d: %s", ack.episode_id, ack.reason)
+
+    def close(self) -> None:
+        self._subscriber.undeclare()
+        self._publisher.undeclare()

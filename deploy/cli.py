@@ -1,0 +1,344 @@
+"""``c2farm``: one subcommand per role, plus ``launch`` that starts them all on this machine.
+
+Every subcommand resolves the same typed config (see ``deploy/config.py``)::
+
+    c2farm launch                                   # router, replay, learner, 2 actors, dashboard
+    c2farm launch --actors 4 --run-id exp1 --set replay.capacity_transitions=50000
+    c2farm router  --run-id exp1 --listen tcp/0.0.0.0:7447          # on the hub machine
+    c2farm actor   --run-id exp1 --connect tcp/HUB:7447 --instance actor-7   # anywhere else
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+from deploy.config_loader import ConfigError, parse_override
+
+#: role -> (module with ``run(config, ctx) -> int``, RunConfig section handed to it, default instance)
+ROLE_ENTRY = {
+    "router": ("deploy.router", "fabric", "router"),
+    "replay": ("replay_server.service", "replay", "replay"),
+    "learner": ("learner.service", "learner", "learner"),
+    "actor": ("actors.service", "actor", "actor-0"),
+    "dashboard": ("dashboard.service", "dashboard", "dashboard"),
+}
+
+PARENT_ENV = "C2FARM_PARENT_PID"  # set by the launcher: a role stops when its launcher is gone
+
+log = logging.getLogger("c2farm")
+
+DESCRIPTION = """\
+C2F-ARM (coarse-to-fine Q-attention) as a distributed actor-learner service.
+
+Roles: a Zenoh router (the hub), a replay server, a learner, N actors and a dashboard.
+`c2farm launch` starts all of them on this machine; the other subcommands start one
+role by hand, e.g. on another machine pointed at the hub with --connect.
+
+Configuration: defaults <- --preset <- --config FILE <- flags <- --set section.key=value.
+See the resolved config (every key, documented) with `c2farm launch --print-config`.
+"""
+
+
+# -- argument parsing --------------------------------------------------------------------
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("configuration (shared by every subcommand)")
+    g.add_argument(
+        "--preset",
+        default="cpu-small",
+        metavar="NAME",
+        help="preset from configs/ (cpu-small: this 2-core machine, paper: the paper's settings) "
+        "or a path to a YAML file; 'none' for bare defaults (default: %(default)s)",
+    )
+    g.add_argument(
+        "--config",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="YAML file merged over the preset, e.g. runs/<run-id>/config.yaml (repeatable)",
+    )
+    g.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one key; the value is read as YAML (e.g. --set replay.compression=lz4, "
+        "--set fabric.connect=[tcp/10.0.0.2:7447]); repeatable, applied last",
+    )
+    g.add_argument("--run-id", metavar="ID", help="run name; all roles of a run must share it (run.run_id)")
+    g.add_argument("--seed", type=int, metavar="N", help="base random seed (run.seed)")
+    g.add_argument("--runs-dir", metavar="DIR", help="parent of run directories (run.runs_dir, default runs)")
+    g.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh router endpoint(s) this process dials, e.g. tcp/10.0.0.2:7447 (fabric.connect; repeatable)",
+    )
+    g.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint(s) the router listens on, e.g. tcp/0.0.0.0:7447 (fabric.listen; repeatable). "
+        "Without --connect, local roles dial the same port on 127.0.0.1",
+    )
+    g.add_argument(
+        "--shm",
+        dest="shared_memory",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="Zenoh same-host shared-memory transport (fabric.shared_memory; default on)",
+    )
+    g.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print the resolved config with a comment on every key, then exit",
+    )
+    g.add_argument("--log-level", default="INFO", help="Python log level (default: %(default)s)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="c2farm", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser(
+        "launch",
+        help="start every role on this machine and supervise them",
+        description="Start the Zenoh router, replay server, learner, N actors and the dashboard as "
+        "separate processes; stream their logs with a role prefix; restart actors that die; "
+        "stop everything on Ctrl-C / SIGTERM. Writes runs/<run-id>/config.yaml and versions.json.",
+    )
+    _common(p)
+    p.add_argument("--actors", type=int, metavar="N", help="number of actor processes (launch.num_actors)")
+    p.add_argument(
+        "--roles",
+        metavar="LIST",
+        help="comma-separated roles to start here (launch.roles), e.g. 'actor' on an extra actor "
+        "machine with --connect tcp/HUB:7447; default: router,replay,learner,actor,dashboard",
+    )
+    p.add_argument(
+        "--router-port",
+        type=int,
+        metavar="PORT",
+        help="shortcut: router listens on, and roles dial, tcp/127.0.0.1:PORT (0 picks a free port)",
+    )
+    p.add_argument("--dashboard-host", metavar="HOST", help="dashboard bind address (dashboard.host)")
+    p.add_argument(
+        "--dashboard-port", type=int, metavar="PORT", help="dashboard port (dashboard.port; 0 picks a free one)"
+    )
+
+    helps = {
+        "router": "run the Zenoh router (the hub every other role connects to)",
+        "replay": "run the replay server (stores episodes, serves batches to the learner)",
+        "learner": "run the learner (trains the Q-attention cascade, broadcasts weights)",
+        "actor": "run one actor (steps the PyBullet Panda task, sends episodes)",
+        "dashboard": "run the HTTP dashboard (GET /, /api/status, /healthz, /metrics)",
+    }
+    for role, text in helps.items():
+        p = sub.add_parser(role, help=text, description=text[0].upper() + text[1:] + ".")
+        _common(p)
+        p.add_argument(
+            "--instance",
+            metavar="NAME",
+            default=ROLE_ENTRY[role][2],
+            help="unique name of this process within its role (default: %(default)s)",
+        )
+        if role == "dashboard":
+            p.add_argument("--host", metavar="HOST", help="bind address (dashboard.host, default 127.0.0.1)")
+            p.add_argument("--port", type=int, metavar="PORT", help="HTTP port (dashboard.port, default 8080)")
+    return parser
+
+
+def overrides_from_args(args: argparse.Namespace) -> list[dict]:
+    """First-class flags as config overrides, then every ``--set``."""
+    out: dict = {}
+
+    def put(section: str, key: str, value) -> None:
+        if value is not None:
+            out.setdefault(section, {})[key] = value
+
+    put("run", "run_id", args.run_id)
+    put("run", "seed", args.seed)
+    put("run", "runs_dir", args.runs_dir)
+    put("fabric", "shared_memory", args.shared_memory)
+    listen = args.listen
+    if getattr(args, "router_port", None) is not None:
+        port = args.router_port or free_port()
+        listen = listen or [f"tcp/127.0.0.1:{port}"]
+    if listen:
+        put("fabric", "listen", listen)
+        if not args.connect:
+            put("fabric", "connect", [_loopback(e) for e in listen])
+    put("fabric", "connect", args.connect)
+    put("launch", "num_actors", getattr(args, "actors", None))
+    roles = getattr(args, "roles", None)
+    if roles is not None:
+        put("launch", "roles", [r.strip() for r in roles.split(",") if r.strip()])
+    put("dashboard", "host", getattr(args, "dashboard_host", None) or getattr(args, "host", None))
+    port = getattr(args, "dashboard_port", None)
+    port = port if port is not None else getattr(args, "port", None)
+    put("dashboard", "port", port)
+    return [out] + [parse_override(text) for text in args.overrides]
+
+
+def _loopback(endpoint: str) -> str:
+    for wildcard in ("0.0.0.0", "[::]"):
+        endpoint = endpoint.replace(f"/{wildcard}:", "/127.0.0.1:")
+    return endpoint
+
+
+def free_port() -> int:
+    """A TCP port that was free a moment ago on 127.0.0.1."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+# -- running a role ----------------------------------------------------------------------
+
+
+def tcp_endpoints(endpoints: Sequence[str]) -> list[tuple[str, int]]:
+    """``tcp/HOST:PORT`` endpoints as (host, port); other protocols are skipped."""
+    out = []
+    for endpoint in endpoints:
+        proto, _, address = endpoint.partition("/")
+        address = address.split("#", 1)[0].split("?", 1)[0]
+        if proto != "tcp" or ":" not in address:
+            continue
+        host, _, port = address.rpartition(":")
+        try:
+            out.append((host.strip("[]"), int(port)))
+        except ValueError:
+            continue
+    return out
+
+
+def wait_for_router(endpoints: Sequence[str], timeout_s: float, stop: threading.Event) -> bool:
+    """Poll until one router endpoint accepts a TCP connection (True) or time runs out."""
+    targets = tcp_endpoints(endpoints)
+    if not targets:
+        return True
+    deadline = time.monotonic() + timeout_s
+    while True:
+        for host, port in targets:
+            try:
+                with socket.create_connection((host, port), timeout=1.0):
+                    return True
+            except OSError:
+                pass
+        if time.monotonic() >= deadline or stop.wait(0.1):
+            return False
+
+
+def _watch_parent(parent_pid: int, stop: threading.Event) -> None:
+    def loop() -> None:
+        while not stop.wait(0.5):
+            if os.getppid() != parent_pid:
+                log.warning("launcher (pid %d) is gone; stopping", parent_pid)
+                stop.set()
+
+    threading.Thread(target=loop, name="watch-parent", daemon=True).start()
+
+
+def run_role(role: str, config, instance: str) -> int:
+    """Run one role in this process until it is told to stop; return its exit code."""
+    from protocol.role import RoleContext, stop_on_signals
+
+    module_name, section, _ = ROLE_ENTRY[role]
+    ctx = RoleContext(
+        run_id=config.run.run_id,
+        instance=instance,
+        run_dir=config.run_dir,
+        seed=config.run.seed,
+        fabric=config.fabric,
+    )
+    stop_on_signals(ctx.stop)
+    if os.environ.get(PARENT_ENV):
+        _watch_parent(int(os.environ[PARENT_ENV]), ctx.stop)
+    if role != "router" and not wait_for_router(config.fabric.connect, config.launch.router_wait_s, ctx.stop):
+        if ctx.stop.is_set():
+            return 0
+        log.error("no Zenoh router answers on %s (start `c2farm router` or `c2farm launch` first)",
+                  ", ".join(config.fabric.connect))
+        return 2
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        log.error("role %s is not available: %s", role, exc)
+        return 2
+    entry: Callable[..., int] = module.run
+    log.info("%s %s starting (run %s, pid %d)", role, instance, ctx.run_id, os.getpid())
+    code = entry(getattr(config, section, None), ctx)
+    log.info("%s %s stopped (exit %s)", role, instance, code)
+    return int(code or 0)
+
+
+# -- main --------------------------------------------------------------------------------
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, str(args.log_level).upper(), logging.INFO),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        datefmt="%H:%M:%S",
+    )
+    from deploy import config as cfg_mod
+
+    try:
+        config = cfg_mod.load_config(
+            preset=None if args.preset == "none" else args.preset,
+            files=tuple(args.config),
+            overrides=tuple(overrides_from_args(args)),
+        )
+        if args.command == "launch" and config.run.run_id is None:
+            config.run.run_id = _unique_run_id(cfg_mod, Path(config.run.runs_dir))
+        if args.command == "launch" and "dashboard" in config.launch.roles and config.dashboard.port == 0:
+            config.dashboard.port = free_port()
+        if args.print_config:
+            sys.stdout.write(cfg_mod.dump_yaml(config, docs=True))
+            return 0
+        if config.run.run_id is None:
+            raise ConfigError(
+                "run.run_id: not set; every role of a run needs the same --run-id (`c2farm launch` prints it)"
+            )
+    except ConfigError as exc:
+        print(f"c2farm: config error: {exc}", file=sys.stderr)
+        return 2
+
+    if args.command == "launch":
+        from deploy.launch import Launcher
+
+        cfg_mod.write_run_dir(config, overwrite=True)
+        return Launcher(config).run()
+    cfg_mod.write_run_dir(config, overwrite=False)
+    try:
+        return run_role(args.command, config, args.instance)
+    except ValueError as exc:  # a bad instance name
+        print(f"c2farm: {exc}", file=sys.stderr)
+        return 2
+
+
+def _unique_run_id(cfg_mod, runs_dir: Path) -> str:
+    base = cfg_mod.new_run_id()
+    run_id, n = base, 1
+    while (runs_dir / run_id).exists():
+        n += 1
+        run_id = f"{base}-{n}"
+    return run_id
+
+
+if __name__ == "__main__":
+    sys.exit(main())

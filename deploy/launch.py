@@ -1,0 +1,265 @@
+"""``c2farm launch``: every role as its own OS process on this machine, supervised.
+
+- Each role runs ``python -m deploy.cli <role> --config runs/<run-id>/config.yaml``: a fresh
+  interpreter (fork+exec, never a fork of a process holding a Zenoh session), in its own
+  process group so a terminal's Ctrl-C reaches only the launcher, which then stops the
+  roles in order.
+- Output of every child is streamed with a prefix (``[actor-1] ...``) and also appended to
+  ``runs/<run-id>/logs/<instance>.log``.
+- The router starts first; the others start once it accepts connections.
+- A dead role listed in ``launch.restart`` (actors, by default) is restarted with a
+  doubling backoff, at most ``launch.max_restarts`` times.
+- SIGINT/SIGTERM: SIGTERM to every role (the router last), SIGKILL to whatever is left
+  after ``launch.shutdown_grace_s``; the launcher returns only when no child remains.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Optional
+
+from deploy.cli import PARENT_ENV, tcp_endpoints, wait_for_router
+from deploy.config import RunConfig
+
+START_ORDER = ("router", "replay", "learner", "actor", "dashboard")
+
+
+@dataclass
+class Child:
+    """One supervised role process (it keeps its name across restarts)."""
+
+    role: str
+    instance: str
+    proc: Optional[subprocess.Popen] = None
+    restarts: int = 0  #: restarts done so far
+    restart_at: Optional[float] = None  #: monotonic time of a scheduled restart
+    done: bool = False  #: exited and will not be restarted
+    reader: Optional[threading.Thread] = field(default=None, repr=False)
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+
+class Launcher:
+    def __init__(self, config: RunConfig, out: IO[str] = sys.stdout):
+        self.config = config
+        self.run_dir = config.run_dir
+        self.out = out
+        self._out_lock = threading.Lock()
+        self.stop = threading.Event()
+        self._signals = 0
+        self.children: list[Child] = []
+        launch = config.launch
+        for role in START_ORDER:
+            if role not in launch.roles:
+                continue
+            if role == "actor":
+                self.children += [Child("actor", f"actor-{i}") for i in range(launch.num_actors)]
+            else:
+                self.children.append(Child(role, role))
+
+    # -- output ----------------------------------------------------------------------
+
+    def say(self, text: str, prefix: str = "launch") -> None:
+        with self._out_lock:
+            self.out.write(f"[{prefix}] {text}\n")
+            self.out.flush()
+
+    def _pump(self, child: Child, proc: subprocess.Popen) -> None:
+        log_path = self.run_dir / "logs" / f"{child.instance}.log"
+        with open(log_path, "a", encoding="utf-8") as log_file:
+            for line in proc.stdout:  # ends when the child (and its fd copies) are gone
+                log_file.write(line)
+                log_file.flush()
+                self.say(line.rstrip("\n"), prefix=child.instance)
+
+    # -- processes -------------------------------------------------------------------
+
+    def command(self, child: Child) -> list[str]:
+        return [
+            sys.executable,
+            "-m",
+            "deploy.cli",
+            child.role,
+            "--preset",
+            "none",
+            "--config",
+            str(self.run_dir / "config.yaml"),
+            "--run-id",
+            self.config.run.run_id,
+            "--instance",
+            child.instance,
+        ]
+
+    def start(self, child: Child) -> None:
+        (self.run_dir / "logs").mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **{PARENT_ENV: str(os.getpid())})
+        proc = subprocess.Popen(
+            self.command(child),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            errors="replace",
+            bufsize=1,
+            env=env,
+            start_new_session=True,  # own process group: killpg reaches its helpers too
+        )
+        child.proc, child.restart_at = proc, None
+        child.reader = threading.Thread(target=self._pump, args=(child, proc), daemon=True)
+        child.reader.start()
+        self.say(f"started {child.instance} (pid {proc.pid})")
+
+    def _on_signal(self, signum, _frame) -> None:
+        self._signals += 1
+        self.stop.set()
+        if self._signals > 1:  # a second Ctrl-C: no more patience
+            for child in self.children:
+                self._kill(child, signal.SIGKILL)
+
+    @staticmethod
+    def _kill(child: Child, sig: int) -> None:
+        if child.proc is None or child.proc.poll() is not None:
+            return  # never signal a reaped pid: it may belong to someone else by now
+        try:
+            os.killpg(child.proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+    # -- the run ---------------------------------------------------------------------
+
+    def run(self) -> int:
+        """Start everything, supervise until a signal, stop everything; return an exit code."""
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        code = 0
+        try:
+            code = self._start_all()
+            if code == 0:
+                self._banner()
+                code = self._supervise()
+        finally:
+            self._shutdown()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        return code
+
+    def _start_all(self) -> int:
+        for child in self.children:
+            if self.stop.is_set():
+                return 0
+            self.start(child)
+            if child.role == "router" and not self._router_ready(child):
+                return 1
+        return 0
+
+    def _router_ready(self, router: Child) -> bool:
+        wait_s = self.config.launch.router_wait_s
+        ready = threading.Event()
+
+        def probe() -> None:
+            if wait_for_router(self.config.fabric.listen, wait_s, self.stop):
+                ready.set()
+
+        thread = threading.Thread(target=probe, daemon=True)
+        thread.start()
+        while thread.is_alive():
+            if not router.alive:
+                self.say(f"the router exited with code {router.proc.returncode}; is the port in use?")
+                return False
+            thread.join(0.1)
+        if not ready.is_set() and not self.stop.is_set():
+            self.say(f"the router did not listen on {self.config.fabric.listen} within {wait_s:.0f} s")
+            return False
+        return True
+
+    def _banner(self) -> None:
+        cfg = self.config
+        self.say(f"run {cfg.run.run_id}: {self.run_dir}/ (config.yaml, versions.json, logs/)")
+        if tcp_endpoints(cfg.fabric.listen) and "router" in cfg.launch.roles:
+            self.say(f"zenoh router on {', '.join(cfg.fabric.listen)}")
+        if "dashboard" in cfg.launch.roles:
+            self.say(f"dashboard: http://{cfg.dashboard.host}:{cfg.dashboard.port}/")
+        self.say("press Ctrl-C to stop")
+
+    def _supervise(self) -> int:
+        launch = self.config.launch
+        while not self.stop.wait(0.2):
+            now = time.monotonic()
+            for child in self.children:
+                if child.done:
+                    continue
+                if child.restart_at is not None:
+                    if now >= child.restart_at:
+                        child.restarts += 1
+                        self.start(child)
+                    continue
+                if child.alive:
+                    continue
+                code = child.proc.returncode
+                if child.role in launch.restart and child.restarts < launch.max_restarts:
+                    delay = min(launch.restart_backoff_s * 2**child.restarts, launch.restart_backoff_max_s)
+                    child.restart_at = now + delay
+                    self.say(
+                        f"{child.instance} exited with code {code}; restart "
+                        f"{child.restarts + 1}/{launch.max_restarts} in {delay:.1f} s"
+                    )
+                else:
+                    child.done = True
+                    why = "restart limit reached" if child.role in launch.restart else "not restarted"
+                    self.say(f"{child.instance} exited with code {code} ({why})")
+            if self.children and all(c.done for c in self.children):
+                self.say("every role has exited")
+                return 1
+        return 0
+
+    def _shutdown(self) -> None:
+        """SIGTERM all (router last), SIGKILL after the grace period, reap everything."""
+        if not any(c.alive for c in self.children):
+            self._join_readers()
+            return
+        self.say("stopping all roles")
+        grace = self.config.launch.shutdown_grace_s
+        deadline = time.monotonic() + grace
+        others = [c for c in self.children if c.role != "router"]
+        routers = [c for c in self.children if c.role == "router"]
+        for child in others:
+            self._kill(child, signal.SIGTERM)
+        self._wait(others, time.monotonic() + grace * 0.6)
+        for child in routers:
+            self._kill(child, signal.SIGTERM)
+        self._wait(self.children, deadline)
+        for child in self.children:
+            if child.alive:
+                self.say(f"{child.instance} did not stop within {grace:.0f} s; killing it")
+                self._kill(child, signal.SIGKILL)  # the whole process group, helpers included
+        for child in self.children:
+            if child.proc is not None:
+                try:
+                    child.proc.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    self.say(f"{child.instance} (pid {child.proc.pid}) would not die")
+        self._join_readers()
+        self.say("all roles stopped")
+
+    @staticmethod
+    def _wait(children: list[Child], deadline: float) -> None:
+        while any(c.alive for c in children) and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+    def _join_readers(self) -> None:
+        for child in self.children:
+            if child.reader is not None:
+                child.reader.join(timeout=2)
+
+
+def launch(config: RunConfig) -> int:
+    """Run ``config`` on this machine until interrupted (the body of ``c2farm launch``)."""
+    return Launcher(config).run()

@@ -1,0 +1,112 @@
+"""Configuration for the replay server (``c2farm replay``).
+
+Composed into the root config by the CLI; every field has a default and a one-line doc.
+Priorities arrive from the learner already raised to the PER exponent (the reference
+applies alpha in the agent), so ``priority_alpha`` defaults to 1.0 and ``importance_beta``
+to 0.5, which reproduces the reference's ``w = 1/sqrt(p)`` normalised by the batch max.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Literal, Optional
+
+
+@dataclass
+class ReplayConfig:
+    """Settings of the replay server process."""
+
+    # ZeroMQ endpoint the ROUTER sample service binds (the learner's DEALER connects to it).
+    zmq_endpoint: str = "tcp://127.0.0.1:5560"
+    # Capacity in transitions; the oldest episodes are evicted first beyond it.
+    capacity_transitions: int = 100_000
+    # Capacity in stored bytes (after compression); the oldest episodes are evicted first beyond it.
+    capacity_bytes: int = 8 * 1024**3
+    # Evict demo episodes only when no live-policy episode is left to evict.
+    keep_demos: bool = True
+    # Per-frame compression of image/point arrays in memory and in checkpoints.
+    compression: Literal["none", "lz4", "zstd"] = "none"
+    # zstd level (only used when compression == "zstd").
+    zstd_level: int = 1
+    # Store float32 point clouds as float16 (RGB is always uint8 on the wire already).
+    points_float16: bool = True
+    # Exponent applied by the server to learner priorities (1.0: the learner already applied alpha).
+    priority_alpha: float = 1.0
+    # Importance-sampling exponent: w = (N * P(i)) ** -beta / max over the batch (0.5 = reference).
+    importance_beta: float = 0.5
+    # Floor for updated priorities so that no item becomes unsampleable by accident.
+    priority_eps: float = 1e-6
+    # Priority of the very first items (new items get the running max of all priorities set).
+    initial_priority: float = 1.0
+    # Minimum stored transitions before any batch is served.
+    min_size_to_sample: int = 1_000
+    # Target sampled transitions per inserted transition (Reverb SampleToInsertRatio); 0 disables.
+    samples_per_insert: float = 0.0
+    # Allowed deviation (in sampled transitions) from the target ratio; must be >= the batch size.
+    samples_per_insert_error_buffer: float = 10_000.0
+    # Longest wait (s) of a sample request on the rate limiter before an error reply (also capped by the request).
+    sample_wait_timeout_s: float = 10.0
+    # Throttle inserts too when sampling falls behind the ratio (False: only sampling is throttled).
+    limit_inserts: bool = False
+    # Longest wait (s) of an insert on the rate limiter; after it the episode is stored anyway and counted.
+    insert_wait_timeout_s: float = 5.0
+    # ZeroMQ send high-water mark (messages = batches) of the ROUTER socket.
+    zmq_sndhwm: int = 8
+    # ZeroMQ receive high-water mark (messages) of the ROUTER socket.
+    zmq_rcvhwm: int = 256
+    # Largest accepted episode message in bytes; larger ones are rejected and counted.
+    max_episode_bytes: int = 256 * 1024**2
+    # Most episodes waiting between the Zenoh callback and the ingest thread.
+    ingest_queue_size: int = 64
+    # Most bytes waiting between the Zenoh callback and the ingest thread.
+    ingest_queue_bytes: int = 512 * 1024**2
+    # Longest wait (s) of the Zenoh callback on a full ingest queue; then the episode is dropped unacked (the actor resends).
+    ingest_put_timeout_s: float = 2.0
+    # Most episodes committed together (one write-ahead-log fsync for all of them).
+    ingest_batch_max: int = 32
+    # Write every accepted episode to a write-ahead log before acking it (an ack then survives SIGKILL).
+    wal_enabled: bool = True
+    # fsync the write-ahead log before acking (survives power loss, not only process death).
+    wal_fsync: bool = True
+    # Write-ahead-log size (bytes) that triggers an early checkpoint.
+    wal_checkpoint_bytes: int = 2 * 1024**3
+    # Episode ids remembered per actor for duplicate detection (older ids count as duplicates).
+    dedup_window: int = 10_000
+    # Seconds between periodic checkpoints; 0 disables periodic checkpoints.
+    checkpoint_interval_s: float = 600.0
+    # Number of complete checkpoints kept on disk.
+    checkpoint_keep: int = 2
+    # Write a checkpoint when the server stops (SIGTERM / ctx.stop).
+    checkpoint_on_stop: bool = True
+    # Restore the latest complete checkpoint (and replay the write-ahead log) at start.
+    restore_on_start: bool = True
+    # Checkpoint/WAL directory override; None means ctx.run_dir / "replay".
+    checkpoint_dir: Optional[str] = None
+    # Random seed for sampling (None: derived from the role context seed).
+    seed: Optional[int] = None
+    # Seconds between status messages (Heartbeat period).
+    status_interval_s: float = 1.0
+
+
+def apply_overrides(config: ReplayConfig, items: list[str]) -> ReplayConfig:
+    """Apply ``name=value`` strings (``--set`` style) to ``config``, converting to each field's type."""
+    types = {f.name: f.type for f in fields(config)}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip().removeprefix("replay.")
+        if not sep or name not in types:
+            raise ValueError(f"unknown replay setting {item!r}; known: {', '.join(types)}")
+        kind = str(types[name])
+        if text.lower() in ("none", "null") and "Optional" in kind:
+            value = None
+        elif kind.startswith("bool"):
+            if text.lower() not in ("1", "0", "true", "false", "yes", "no"):
+                raise ValueError(f"{name}: expected a boolean, got {text!r}")
+            value = text.lower() in ("1", "true", "yes")
+        elif kind.startswith("int") or kind == "Optional[int]":
+            value = int(float(text)) if "e" in text.lower() else int(text)
+        elif kind.startswith("float"):
+            value = float(text)
+        else:
+            value = text
+        setattr(config, name, value)
+    return config

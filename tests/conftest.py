@@ -1,0 +1,174 @@
+"""Shared fixtures: free ports, a real Zenoh router, episodes of realistic size, process hygiene."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import psutil
+import pytest
+
+from protocol.episode import Episode
+from protocol.fabric import FabricConfig, open_session
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def get_free_port() -> int:
+    """A TCP port that was free a moment ago (bind port 0 and read what the kernel chose)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def free_port() -> Callable[[], int]:
+    return get_free_port
+
+
+@pytest.fixture(params=[True, False], ids=["shm", "no-shm"])
+def shm(request) -> bool:
+    return request.param
+
+
+@pytest.fixture
+def router(shm: bool):
+    """A real Zenoh router session on a free loopback port; yields the FabricConfig to dial it."""
+    endpoint = f"tcp/127.0.0.1:{get_free_port()}"
+    fabric = FabricConfig(connect=[endpoint], listen=[endpoint], shared_memory=shm)
+    session = open_session(fabric, "router")
+    try:
+        yield fabric
+    finally:
+        session.close()
+
+
+def make_episode(
+    cameras=("front",), steps: int = 10, side: int = 128, seed: int = 0, actor_id: str = "actor-0", episode_id: int = 0
+) -> Episode:
+    """A schema-valid episode of random content: T steps, T + 1 observations per camera."""
+    rng = np.random.default_rng(seed)
+    n = steps + 1
+    obs: dict[str, np.ndarray] = {}
+    for cam in cameras:
+        obs[f"{cam}_rgb"] = rng.integers(0, 256, (n, side, side, 3), dtype=np.uint8)
+        obs[f"{cam}_points"] = rng.standard_normal((n, side, side, 3)).astype(np.float16)
+        obs[f"{cam}_intrinsics"] = np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
+        obs[f"{cam}_extrinsics"] = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
+    obs["gripper_pose"] = rng.standard_normal((n, 7)).astype(np.float32)
+    obs["gripper_open"] = np.ones(n, dtype=np.float32)
+    obs["finger_positions"] = np.full((n, 2), 0.04, dtype=np.float32)
+    obs["joint_positions"] = rng.standard_normal((n, 7)).astype(np.float32)
+    obs["joint_velocities"] = np.zeros((n, 7), dtype=np.float32)
+    obs["step"] = np.arange(n, dtype=np.int32)
+    terminals = np.zeros(steps, dtype=bool)
+    terminals[-1] = True
+    return Episode(
+        actor_id=actor_id,
+        episode_id=episode_id,
+        task="reach_target",
+        seed=seed,
+        is_demo=False,
+        success=True,
+        timeout=False,
+        observations=obs,
+        actions=rng.standard_normal((steps, 8)).astype(np.float32),
+        rewards=np.r_[np.zeros(steps - 1), 1.0].astype(np.float32),
+        terminals=terminals,
+        policy_versions=np.arange(steps, dtype=np.int64),
+        info={"ended": "success"},
+    )
+
+
+def assert_same_message(a, b) -> None:
+    """Field-by-field equality of two protocol messages, arrays compared exactly (dtype too)."""
+    assert type(a) is type(b)
+    for name in a.__dataclass_fields__:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape, name
+            np.testing.assert_array_equal(x, y, err_msg=name)
+        elif isinstance(x, dict) and x and all(isinstance(v, np.ndarray) for v in x.values()):
+            assert x.keys() == y.keys(), name
+            for k in x:
+                assert x[k].dtype == y[k].dtype, f"{name}.{k}"
+                np.testing.assert_array_equal(x[k], y[k], err_msg=f"{name}.{k}")
+        else:
+            assert x == y, name
+
+
+def wait_for(predicate: Callable[[], object], timeout: float, what: str, interval: float = 0.05):
+    """Poll ``predicate`` until it returns something truthy; fail naming ``what`` on timeout."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(interval)
+
+
+def python_cmd(*args: str) -> list[str]:
+    return [sys.executable, *args]
+
+
+def stop_process_tree(proc: subprocess.Popen, timeout: float = 15.0) -> list[psutil.Process]:
+    """SIGTERM a process we started (and, failing that, SIGKILL it and its descendants).
+
+    Returns the descendants it had, so a test can check none of them survived.
+    """
+    try:
+        descendants = psutil.Process(proc.pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        descendants = []
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            pass
+    kill_all([proc.pid] if proc.poll() is None else [], descendants)
+    return descendants
+
+
+def kill_all(pids: list[int], processes: list[psutil.Process]) -> None:
+    """Last-resort cleanup: SIGKILL the given processes (only those still running)."""
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+    for p in processes:
+        try:
+            if p.is_running():
+                p.kill()
+        except psutil.NoSuchProcess:
+            pass
+    psutil.wait_procs([p for p in processes if _exists(p)], timeout=5)
+
+
+def _exists(p: psutil.Process) -> bool:
+    try:
+        return p.is_running()
+    except psutil.NoSuchProcess:
+        return False
+
+
+def survivors(processes: list[psutil.Process]) -> list[psutil.Process]:
+    """Processes from ``processes`` still running (zombies count as gone)."""
+    out = []
+    for p in processes:
+        try:
+            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                out.append(p)
+        except psutil.NoSuchProcess:
+            pass
+    return out

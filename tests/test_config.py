@@ -1,0 +1,169 @@
+"""The typed config: presets, strict keys and types, overrides, and the run directory."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from typing import Literal, Optional
+
+import pytest
+import yaml
+
+from conftest import REPO
+from deploy.cli import build_parser, overrides_from_args
+from deploy.config import RunConfig, dump_yaml, load_config, write_run_dir
+from deploy.config_loader import ConfigError, field_docs, from_dict, parse_override, to_dict
+
+
+@dataclass
+class Inner:
+    mode: Literal["fast", "slow"] = "fast"  #: a choice
+    ratio: float = 0.5  #: a float
+
+
+@dataclass
+class Outer:
+    count: int = 1  #: an int
+    name: Optional[str] = None  #: an optional string
+    sizes: list[int] = field(default_factory=list)  #: a list
+    bounds: tuple[float, ...] = (0.0, 1.0)  #: a tuple
+    pair: tuple[int, str] = (1, "a")  #: a fixed tuple
+    either: float | tuple[float, ...] = 0.1  #: a union
+    on: bool = False  #: a bool
+    inner: Inner = field(default_factory=Inner)  #: a nested section
+
+
+def test_loader_builds_nested_dataclasses_from_plain_data():
+    cfg = from_dict(Outer, {"count": 3, "name": "x", "sizes": [1, 2], "bounds": [0, 2.5], "pair": [2, "b"],
+                            "either": [1, 2], "on": True, "inner": {"mode": "slow", "ratio": 1}})
+    assert cfg == Outer(3, "x", [1, 2], (0.0, 2.5), (2, "b"), (1.0, 2.0), True, Inner("slow", 1.0))
+    assert from_dict(Outer, {}) == Outer()
+    assert from_dict(Outer, to_dict(cfg)) == cfg
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"cuont": 1}, "cuont: unknown key (did you mean 'count'?)"),
+        ({"inner": {"mdoe": "fast"}}, "inner.mdoe: unknown key (did you mean 'mode'?)"),
+        ({"count": "lots"}, "count: expected int, got 'lots'"),
+        ({"count": True}, "count: expected int, got True"),
+        ({"on": "yes please"}, "on: expected bool"),
+        ({"inner": {"mode": "medium"}}, "inner.mode: expected one of 'fast', 'slow', got 'medium'"),
+        ({"sizes": [1, "two"]}, "sizes[1]: expected int, got 'two'"),
+        ({"pair": [1]}, "pair: expected 2 items, got 1"),
+        ({"inner": 3}, "inner: expected a mapping"),
+        ({"either": "wide"}, "either: expected float or tuple"),
+    ],
+)
+def test_loader_rejects_bad_keys_and_values_naming_them(data, message):
+    with pytest.raises(ConfigError) as err:
+        from_dict(Outer, data)
+    assert message in str(err.value)
+
+
+def test_overrides_parse_values_as_yaml_scalars():
+    assert parse_override("replay.capacity_transitions=1000") == {"replay": {"capacity_transitions": 1000}}
+    assert parse_override("fabric.connect=[tcp/10.0.0.2:7447]") == {"fabric": {"connect": ["tcp/10.0.0.2:7447"]}}
+    assert parse_override("fabric.shared_memory=false") == {"fabric": {"shared_memory": False}}
+    assert parse_override("run.run_id=exp-1") == {"run": {"run_id": "exp-1"}}
+    with pytest.raises(ConfigError, match="expected section.key=value"):
+        parse_override("replay.capacity_transitions")
+
+
+@pytest.mark.parametrize("preset", ["cpu-small", "paper"])
+def test_presets_load_and_apply_what_they_name(preset):
+    cfg = load_config(preset)
+    written = yaml.safe_load((REPO / "configs" / f"{preset}.yaml").read_text())
+    for section, values in written.items():
+        for key, value in values.items():
+            assert to_dict(getattr(getattr(cfg, section), key)) == value
+
+
+def test_resolution_order_defaults_preset_file_flags_set(tmp_path):
+    extra = tmp_path / "extra.yaml"
+    extra.write_text("launch: {num_actors: 5}\nreplay: {zstd_level: 3}\n")
+    args = build_parser().parse_args(
+        ["launch", "--config", str(extra), "--actors", "7", "--router-port", "9000", "--set", "replay.zstd_level=4",
+         "--run-id", "exp-1", "--no-shm"]
+    )
+    cfg = load_config(args.preset, files=tuple(args.config), overrides=tuple(overrides_from_args(args)))
+    assert cfg.launch.num_actors == 7  # flag beats file
+    assert cfg.replay.zstd_level == 4  # --set beats file
+    assert cfg.replay.min_size_to_sample == 200  # from the cpu-small preset
+    assert cfg.fabric.listen == cfg.fabric.connect == ["tcp/127.0.0.1:9000"]
+    assert cfg.fabric.shared_memory is False
+    assert cfg.run.run_id == "exp-1"
+
+
+def test_listening_on_all_interfaces_makes_local_roles_dial_loopback():
+    args = build_parser().parse_args(["router", "--listen", "tcp/0.0.0.0:7447", "--run-id", "r"])
+    cfg = load_config(None, overrides=tuple(overrides_from_args(args)))
+    assert cfg.fabric.listen == ["tcp/0.0.0.0:7447"] and cfg.fabric.connect == ["tcp/127.0.0.1:7447"]
+
+
+def test_bad_values_are_rejected_with_their_path():
+    for override, message in [
+        ({"launch": {"roles": ["router", "trainer"]}}, "launch: unknown role 'trainer'"),
+        ({"dashboard": {"port": 70000}}, "dashboard: port 70000 is outside"),
+        ({"run": {"run_id": "a/b"}}, "run: invalid run id 'a/b'"),
+        ({"replay": {"compression": "gzip"}}, "replay.compression: expected one of"),
+    ]:
+        with pytest.raises(ConfigError, match=message):
+            load_config(None, overrides=(override,))
+
+
+def test_a_bad_preset_file_is_named(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("replay:\n  capasity: 3\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml: replay.capasity: unknown key"):
+        load_config(str(bad))
+    with pytest.raises(ConfigError, match="preset 'nope' not found"):
+        load_config("nope")
+
+
+def test_the_run_directory_holds_the_resolved_config_and_versions(tmp_path):
+    cfg = load_config("cpu-small", overrides=({"run": {"run_id": "exp-2", "runs_dir": str(tmp_path)}},))
+    run_dir = write_run_dir(cfg)
+    assert run_dir == tmp_path / "exp-2"
+    again = load_config(None, files=(run_dir / "config.yaml",))
+    assert again == cfg
+    versions = json.loads((run_dir / "versions.json").read_text())
+    for name in ("python", "torch", "zenoh", "pybullet", "ompl", "numpy", "git_commit"):
+        assert name in versions
+    assert versions["zenoh"].startswith("1.")
+
+
+def test_every_config_field_has_a_doc_comment():
+    cfg = RunConfig()
+    sections = [RunConfig] + [type(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)]
+    for cls in sections:
+        docs = field_docs(cls)
+        missing = [f.name for f in dataclasses.fields(cls) if not docs.get(f.name)]
+        assert not missing, f"{cls.__name__}: fields without a doc comment: {missing}"
+    documented = dump_yaml(cfg, docs=True)
+    assert "capacity_transitions:" in documented and "#" in documented
+
+
+def test_cli_rejects_a_bad_key_at_start_and_names_it(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "deploy.cli", "launch", "--runs-dir", str(tmp_path), "--set", "replay.capasity=10"],
+        capture_output=True, text=True, cwd=REPO, timeout=60,
+    )
+    assert result.returncode == 2
+    assert "replay.capasity: unknown key" in result.stderr
+    assert not any(tmp_path.iterdir())  # nothing started, nothing written
+
+
+def test_cli_prints_the_resolved_documented_config():
+    result = subprocess.run(
+        [sys.executable, "-m", "deploy.cli", "launch", "--preset", "paper", "--run-id", "x", "--print-config"],
+        capture_output=True, text=True, cwd=REPO, timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    printed = yaml.safe_load(result.stdout)
+    assert printed["replay"]["capacity_transitions"] == 100000
+    assert printed["run"]["run_id"] == "x"

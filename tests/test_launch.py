@@ -1,0 +1,175 @@
+"""`c2farm launch` end to end: every role as a real process, supervised, and stopped cleanly."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import httpx
+import psutil
+import pytest
+
+from conftest import REPO, get_free_port, kill_all, stop_process_tree, survivors, wait_for
+from dashboard.registry import FabricFeed, RoleTable
+from deploy.cli import build_parser
+from protocol.fabric import FabricConfig, open_session
+
+C2FARM = [sys.executable, "-m", "deploy.cli"]
+
+
+class Output:
+    """Collects a child's merged stdout/stderr in a thread (so its pipe never fills up)."""
+
+    def __init__(self, proc: subprocess.Popen):
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
+        self._thread.start()
+
+    def _read(self, proc) -> None:
+        for line in proc.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+
+@pytest.mark.parametrize("command", ["launch", "router", "replay", "learner", "actor", "dashboard"])
+def test_every_subcommand_explains_its_options(command):
+    result = subprocess.run(C2FARM + [command, "--help"], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert result.returncode == 0
+    for option in ("--preset", "--config", "--set", "--run-id", "--connect", "--listen", "--print-config"):
+        assert option in result.stdout
+    parser = build_parser()
+    subparser = next(a for a in parser._actions if a.dest == "command").choices[command]
+    undocumented = [a.option_strings for a in subparser._actions if not a.help]
+    assert not undocumented, f"options without a help text: {undocumented}"
+
+
+def test_launch_runs_every_role_restarts_a_killed_actor_and_stops_clean(tmp_path: Path):
+    router_port, dashboard_port, zmq_port = get_free_port(), get_free_port(), get_free_port()
+    launcher = subprocess.Popen(
+        C2FARM + [
+            "launch", "--actors", "2", "--run-id", "launch-test", "--runs-dir", str(tmp_path),
+            "--router-port", str(router_port), "--dashboard-port", str(dashboard_port),
+            "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{zmq_port}",
+            "--set", "launch.restart_backoff_s=3",  # long enough to watch the actor be gone
+        ],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )
+    output = Output(launcher)
+    seen: dict[int, psutil.Process] = {}
+
+    def remember_children() -> None:
+        try:
+            for child in psutil.Process(launcher.pid).children(recursive=True):
+                seen.setdefault(child.pid, child)
+        except psutil.NoSuchProcess:
+            pass
+
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{dashboard_port}", timeout=5) as http:
+
+            def roles():
+                try:
+                    return {r["instance"]: r for r in http.get("/api/status").json()["roles"]}
+                except httpx.HTTPError:
+                    return {}
+
+            expected = {"router", "replay", "learner", "actor-0", "actor-1", "dashboard"}
+            everyone = wait_for(
+                lambda: (r := roles()) and expected <= {n for n, v in r.items() if v["alive"] and v["pid"]} and r,
+                90, "every role to report alive on /api/status",
+            )
+            assert http.get("/healthz").json()["ok"] is True
+            remember_children()
+
+            victim = everyone["actor-1"]["pid"]
+            assert victim in seen  # it is the launcher's child, not some other process
+            os.kill(victim, signal.SIGKILL)
+            gone = wait_for(lambda: (r := roles()) and not r["actor-1"]["alive"] and r["actor-1"], 15,
+                            "the killed actor to show as gone")
+            assert gone["state"] == "gone" and gone["losses"] >= 1
+            assert roles()["actor-0"]["alive"]  # the others carry on
+            back = wait_for(
+                lambda: (r := roles()) and r["actor-1"]["alive"] and r["actor-1"]["pid"] not in (None, victim) and r["actor-1"],
+                60, "the actor to be restarted",
+            )
+            assert back["starts"] >= 2
+            remember_children()
+
+        launcher.send_signal(signal.SIGTERM)
+        assert launcher.wait(timeout=30) == 0
+        assert not survivors(list(seen.values())), f"left behind: {survivors(list(seen.values()))}"
+    finally:
+        if launcher.poll() is None:
+            os.killpg(launcher.pid, signal.SIGKILL)
+        kill_all([], list(seen.values()))
+
+    text = output.text
+    assert f"dashboard: http://127.0.0.1:{dashboard_port}/" in text
+    assert "[actor-0]" in text and "[replay]" in text  # role-prefixed log lines
+    assert "actor-1 exited with code -9; restart 1/" in text
+    run_dir = tmp_path / "launch-test"
+    assert (run_dir / "config.yaml").exists() and (run_dir / "versions.json").exists()
+    assert (run_dir / "logs" / "actor-1.log").exists()
+
+
+def test_roles_can_be_started_one_by_one_by_hand(tmp_path: Path):
+    endpoint = f"tcp/127.0.0.1:{get_free_port()}"
+    common = ["--run-id", "by-hand", "--runs-dir", str(tmp_path)]
+    router = subprocess.Popen(C2FARM + ["router", "--listen", endpoint] + common, cwd=REPO,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    actor = subprocess.Popen(C2FARM + ["actor", "--connect", endpoint, "--instance", "actor-7"] + common, cwd=REPO,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    table = RoleTable("by-hand")
+    session = feed = None
+    try:
+        wait_for(lambda: _can_connect(endpoint), 30, "the router to listen")
+        session = open_session(FabricConfig(connect=[endpoint]))
+        feed = FabricFeed(session, "by-hand", table)
+        wait_for(lambda: {r["instance"] for r in table.snapshot()["roles"] if r["alive"]} == {"router", "actor-7"},
+                 30, "router and actor-7 to be alive")
+        actor.send_signal(signal.SIGTERM)
+        assert actor.wait(timeout=15) == 0
+        wait_for(lambda: not next(r for r in table.snapshot()["roles"] if r["instance"] == "actor-7")["alive"],
+                 10, "actor-7 to be gone after a clean stop")
+    finally:
+        if feed is not None:
+            feed.close()
+        if session is not None:
+            session.close()
+        stop_process_tree(actor)
+        stop_process_tree(router)
+    assert router.returncode == 0
+    assert (tmp_path / "by-hand" / "config.yaml").exists()
+
+
+def test_a_role_without_a_router_fails_clearly(tmp_path: Path):
+    result = subprocess.run(
+        C2FARM + ["learner", "--run-id", "r", "--runs-dir", str(tmp_path), "--connect",
+                  f"tcp/127.0.0.1:{get_free_port()}", "--set", "launch.router_wait_s=0.5"],
+        capture_output=True, text=True, cwd=REPO, timeout=60,
+    )
+    assert result.returncode == 2
+    assert "no Zenoh router answers" in result.stderr
+
+
+def test_a_role_needs_a_run_id():
+    result = subprocess.run(C2FARM + ["actor"], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert result.returncode == 2 and "run.run_id: not set" in result.stderr
+
+
+def _can_connect(endpoint: str) -> bool:
+    import socket
+
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    try:
+        with socket.create_connection((host, int(port)), timeout=1):
+            return True
+    except OSError:
+        return False
