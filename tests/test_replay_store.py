@@ -1,0 +1,280 @@
+"""Replay storage, PER, rate limiter, WAL and checkpoints (in-process, no network)."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from replay_server.checkpoint import list_checkpoints, load_checkpoint, load_latest, write_checkpoint
+from replay_server.config import ReplayConfig, apply_overrides
+from replay_server.ratelimiter import RateLimiter
+from replay_server.storage import EpisodeStore
+from replay_server.sumtree import SumTree
+from replay_server.testing import actor_tag, synthetic_episode
+from replay_server.wal import WriteAheadLog, list_segments, read_segment, segment_path
+
+
+def make_store(**kw) -> EpisodeStore:
+    kw.setdefault("capacity_transitions", 200)
+    kw.setdefault("min_size_to_sample", 1)
+    return EpisodeStore(ReplayConfig(**kw))
+
+
+def fill(store, n, actor="a", size=8, start=0, **kw):
+    eps = [synthetic_episode(actor, start + i, size=size, **kw) for i in range(n)]
+    for ep in eps:
+        store.insert(ep)
+    return eps
+
+
+def check_batch_exact(batch: dict, episodes_by_key: dict, points_f16: bool = True) -> None:
+    """Every sampled transition equals the source episode's data, bit for bit."""
+    for i, (tag, eid, t) in enumerate(batch["extra_tag"]):
+        ep = episodes_by_key[(int(tag), int(eid))]
+        for name, arr in ep.observations.items():
+            expect_t, expect_tp1 = arr[t], arr[t + 1]
+            if points_f16 and name.endswith("_points"):
+                expect_t, expect_tp1 = expect_t.astype(np.float16), expect_tp1.astype(np.float16)
+            assert batch[name][i].tobytes() == np.ascontiguousarray(expect_t).tobytes(), name
+            assert batch[name + "_tp1"][i].tobytes() == np.ascontiguousarray(expect_tp1).tobytes(), name
+        assert batch["action"][i].tobytes() == ep.actions[t].tobytes()
+        assert batch["reward"][i] == ep.rewards[t]
+        assert batch["terminal"][i] == ep.terminals[t]
+        assert batch["timeout"][i] == (ep.timeout and t == ep.num_steps - 1)
+        assert batch["policy_version"][i] == ep.policy_versions[t]
+        assert batch["is_demo"][i] == ep.is_demo
+
+
+# ---------------------------------------------------------------- sum tree
+
+
+def test_sumtree_find_matches_cumsum():
+    rng = np.random.default_rng(1)
+    tree = SumTree(37)
+    p = rng.uniform(0, 2, 37)
+    p[[3, 10, 11]] = 0.0
+    tree.set(np.arange(37), p)
+    assert tree.total == pytest.approx(p.sum())
+    q = rng.uniform(0, p.sum(), 5000)
+    expect = np.searchsorted(np.cumsum(p), q, side="right")
+    assert np.array_equal(tree.find(q), expect)
+    assert not np.isin(tree.find(np.array([0.0, p.sum() * (1 - 1e-16), p.sum()])), [3, 10, 11]).any()
+    tree.set([5, 5], [7.0, 1.0])  # last one wins
+    assert tree.get([5])[0] == 1.0
+    restored = SumTree(37)
+    restored.set_all(tree.leaves())
+    assert restored.total == pytest.approx(tree.total)
+
+
+def test_sampling_frequencies_match_priorities():
+    store = make_store(capacity_transitions=64)
+    fill(store, 6)  # 60 items
+    rng = np.random.default_rng(1234)
+    slots = np.array([ep.slots for ep in store.episodes.values()]).reshape(-1)
+    keys = store.slot_key[slots]
+    prio = rng.uniform(0.1, 3.0, len(slots)).astype(np.float32)
+    store.update_priorities(slots, keys, prio)
+    n = 60_000
+    counts = np.zeros(store.capacity)
+    for _ in range(n // 500):
+        s, *_ = store.sample(500, rng, 0.5)
+        np.add.at(counts, s, 1)
+    expected = np.zeros(store.capacity)
+    expected[slots] = n * prio / prio.sum()
+    chi2 = (((counts[slots] - expected[slots]) ** 2) / expected[slots]).sum()
+    assert counts.sum() == n and counts[np.setdiff1d(np.arange(64), slots)].sum() == 0
+    assert chi2 < 99.6  # chi-square, 59 degrees of freedom, p = 0.001
+
+
+def test_importance_weights_match_reference_formula():
+    store = make_store()
+    fill(store, 3)
+    slots = np.concatenate([ep.slots for ep in store.episodes.values()])
+    p = np.linspace(0.1, 2.0, len(slots))
+    store.update_priorities(slots, store.slot_key[slots], p)
+    s, k, probs, w, eps, ts = store.sample(64, np.random.default_rng(0), 0.5)
+    raw = store.tree.get(s)
+    ref = 1 / np.sqrt(raw + 1e-10)  # reference: w = 1/sqrt(p) / max
+    assert np.allclose(w, ref / ref.max(), rtol=1e-5)
+    assert np.allclose(probs, raw / store.tree.total, rtol=1e-6)
+
+
+def test_new_items_get_max_priority_and_stale_updates_are_ignored():
+    store = make_store(capacity_transitions=30, keep_demos=False)
+    fill(store, 3)
+    s, k, *_ = store.sample(5, np.random.default_rng(0), 0.5)
+    assert store.update_priorities(s[:1], k[:1], [5.0]) == (1, 0)
+    new = fill(store, 1, start=3)  # evicts episode 0, reuses its slots with new keys
+    assert store.tree.get(store.episodes[3].slots).tolist() == [5.0] * 10  # running max
+    old_slots = np.arange(30)
+    old_keys = np.arange(30)  # keys 0..9 were episode 0's: now stale
+    applied, stale = store.update_priorities(old_slots, old_keys, np.full(30, 9.0, np.float32))
+    assert stale == 10 and applied == 20
+    assert store.tree.get(store.episodes[3].slots).tolist() == [5.0] * 10
+    assert store.counters["stale_priority_updates"] == 10
+    assert store.update_priorities([1000], [0], [1.0]) == (0, 1)  # out of range: ignored
+    assert new[0].episode_id == 3
+
+
+def test_batch_is_bit_exact_for_every_compression():
+    for comp in ("none", "lz4", "zstd"):
+        store = make_store(compression=comp)
+        eps = fill(store, 4, size=12, timeout=True) + fill(store, 2, actor="b", size=12, is_demo=True)
+        by_key = {(actor_tag(e.actor_id), e.episode_id): e for e in eps}
+        s, k, probs, w, sampled, ts = store.sample(64, np.random.default_rng(3), 0.5)
+        batch = store.gather(sampled, ts)
+        check_batch_exact(batch, by_key)
+        assert batch["timeout"].any() and batch["is_demo"].any()
+
+
+def test_eviction_by_transitions_bytes_and_demo_keeping():
+    store = make_store(capacity_transitions=50, keep_demos=True)
+    fill(store, 2, actor="demo", is_demo=True)
+    fill(store, 10, actor="live")
+    assert store.size == 50 and store.num_episodes == 5
+    assert sum(e.is_demo for e in store.episodes.values()) == 2
+    assert [e.episode_id for e in store.episodes.values() if not e.is_demo] == [7, 8, 9]
+
+    one = EpisodeStore(ReplayConfig(capacity_transitions=1000)).insert(synthetic_episode(size=8)).nbytes
+    store = make_store(capacity_transitions=1000, capacity_bytes=int(one * 3.5), keep_demos=False)
+    fill(store, 2, actor="demo", is_demo=True)
+    fill(store, 4, actor="live")
+    assert store.num_episodes == 3 and store.bytes <= store.config.capacity_bytes
+    assert not any(e.is_demo for e in store.episodes.values())  # keep_demos=False: plain FIFO
+
+
+def test_duplicates_and_schema_mismatch():
+    store = make_store(dedup_window=5)
+    fill(store, 20)
+    assert store.is_duplicate("a", 19) and not store.is_duplicate("a", 20) and not store.is_duplicate("b", 0)
+    assert store.is_duplicate("a", 0)  # older than the remembered window: treated as already stored
+    bad = synthetic_episode("b", 0, size=16)
+    assert "do not match" in store.check(bad)
+    assert "do not match" in store.check(synthetic_episode("b", 0, size=8, cameras=("front", "wrist")))
+    assert store.check(synthetic_episode("b", 0, size=8)) == ""
+
+
+def test_rate_limiter_holds_ratio():
+    with pytest.raises(ValueError):
+        RateLimiter(4.0, 10, 2.0)
+    lim = RateLimiter(2.0, min_size=100, error_buffer=20)
+    assert "min_size" in lim.sample_block_reason(8, size=50)
+    size = 0
+    for _ in range(50):  # 50 inserts of 10, sample greedily in batches of 8
+        lim.inserts += 10
+        size += 10
+        while not lim.sample_block_reason(8, size):
+            lim.samples += 8
+        assert size < 100 or lim.diff >= lim.min_diff
+    expected = 2.0 * (lim.inserts - 100) + 20
+    assert expected - 8 <= lim.samples <= expected
+    assert "waiting for inserts" in lim.sample_block_reason(8, size)
+    ins = RateLimiter(1.0, min_size=10, error_buffer=16, limit_inserts=True)
+    ins.inserts = 26
+    assert "waiting for the learner" in ins.insert_block_reason(1)
+
+
+def test_config_overrides():
+    cfg = apply_overrides(ReplayConfig(), ["capacity_transitions=5000", "keep_demos=false", "seed=3",
+                                           "compression=lz4", "samples_per_insert=2.5", "checkpoint_dir=none"])
+    assert (cfg.capacity_transitions, cfg.keep_demos, cfg.seed, cfg.compression, cfg.samples_per_insert) == (
+        5000, False, 3, "lz4", 2.5)
+    with pytest.raises(ValueError):
+        apply_overrides(ReplayConfig(), ["nope=1"])
+
+
+# ---------------------------------------------------------------- checkpoints and WAL
+
+
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+def test_checkpoint_restore_is_exact(tmp_path, compression):
+    store = make_store(capacity_transitions=70, compression=compression, keep_demos=False)
+    fill(store, 9)  # 2 evicted
+    s, k, *_ = store.sample(16, np.random.default_rng(0), 0.5)
+    store.update_priorities(s, k, np.random.default_rng(1).uniform(0, 3, 16).astype(np.float32))
+    snap = store.snapshot()
+    snap.extra = {"wal_segment": 3, "rng_state": np.random.default_rng(7).bit_generator.state}
+    result = write_checkpoint(tmp_path, snap)
+    restored = make_store(capacity_transitions=70, compression=compression, keep_demos=False)
+    loaded = load_checkpoint(result.path)
+    restored.restore(loaded)
+    assert loaded.extra == json.loads(json.dumps(snap.extra))
+    assert np.array_equal(restored.tree.leaves(), store.tree.leaves())
+    for name in ("slot_key", "slot_serial", "slot_t"):
+        assert np.array_equal(getattr(restored, name), getattr(store, name)), name
+    assert np.array_equal(restored.free[: restored.n_free], store.free[: store.n_free])
+    assert restored.counters == store.counters and restored.bytes == store.bytes
+    assert (restored.next_key, restored.next_serial, restored.max_priority) == (
+        store.next_key, store.next_serial, store.max_priority)
+    assert restored.dedup == store.dedup and restored.schema == store.schema
+    for serial, ep in store.episodes.items():
+        other = restored.episodes[serial]
+        assert other.meta() == ep.meta() and np.array_equal(other.slots, ep.slots)
+        for name, a in ep.arrays.items():
+            assert a.tobytes() == other.arrays[name].tobytes() and a.dtype == other.arrays[name].dtype
+        assert ep.frames == other.frames
+    # both stores now sample identically
+    a = store.sample(8, np.random.default_rng(5), 0.5)
+    b = restored.sample(8, np.random.default_rng(5), 0.5)
+    assert all(np.array_equal(x, y) for x, y in zip(a[:4], b[:4]))
+
+
+def test_corrupt_or_incomplete_checkpoints_are_skipped(tmp_path):
+    store = make_store()
+    fill(store, 2)
+    first = write_checkpoint(tmp_path, store.snapshot(), keep=5)
+    fill(store, 1, start=2)
+    second = write_checkpoint(tmp_path, store.snapshot(), keep=5)
+    (tmp_path / ".tmp-ckpt-00000009").mkdir()  # an interrupted write
+    shutil.copytree(second.path, tmp_path / "ckpt-00000008")
+    (tmp_path / "ckpt-00000008" / "COMPLETE").unlink()  # never completed
+    path, snap = load_latest(tmp_path)
+    assert path == second.path and len(snap.episodes) == 3
+    with open(second.path / "slots.npy", "r+b") as f:  # flip a byte
+        f.seek(-1, 2)
+        b = f.read(1)
+        f.seek(-1, 2)
+        f.write(bytes([b[0] ^ 0xFF]))
+    path, snap = load_latest(tmp_path)
+    assert path == first.path and len(snap.episodes) == 2
+    write_checkpoint(tmp_path, store.snapshot(), keep=2)
+    assert len(list_checkpoints(tmp_path, complete_only=False)) == 2
+
+
+def test_wal_replays_intact_records_and_stops_at_a_torn_tail(tmp_path):
+    wal = WriteAheadLog(tmp_path, fsync=True)
+    wal.append([b"one", b"two"])
+    seq = wal.rotate()
+    wal.append([b"three" * 1000])
+    wal.close()
+    with open(segment_path(tmp_path, seq), "ab") as f:
+        f.write(b"WAL1\x00\x00")  # torn header
+    assert list(read_segment(segment_path(tmp_path, 0))) == [b"one", b"two"]
+    assert list(read_segment(segment_path(tmp_path, seq))) == [b"three" * 1000]
+    with open(segment_path(tmp_path, seq), "r+b") as f:  # corrupt the payload
+        f.seek(20)
+        f.write(b"X")
+    assert list(read_segment(segment_path(tmp_path, seq))) == []
+    again = WriteAheadLog(tmp_path)
+    assert again.seq == seq + 1  # never appends to an old segment
+    again.delete_before(seq)
+    assert list_segments(tmp_path) == [seq, seq + 1]
+    again.close()
+
+
+def test_batch_wire_roundtrip_and_malformed_frames():
+    from protocol.codec import ProtocolError
+    from protocol.messages import SampleBatch
+    from replay_server.wire import batch_frames, parse_batch
+
+    arrays = {"a": np.arange(12, dtype=np.float16).reshape(3, 4), "b": np.array([True, False]), "c": np.zeros((0, 2))}
+    frames = [bytes(memoryview(f)) if isinstance(f, np.ndarray) else f for f in batch_frames(SampleBatch(7, arrays, "", {"x": 1.0}))]
+    out = parse_batch(frames)
+    assert out.request_id == 7 and out.info == {"x": 1.0}
+    assert all(out.arrays[k].tobytes() == v.tobytes() and out.arrays[k].shape == v.shape for k, v in arrays.items())
+    for bad in (frames[:1], frames[:2] + frames[3:], [frames[0], b"{", *frames[2:]], [b"junk", *frames[1:]],
+                [frames[0], frames[1], frames[2][:-1], *frames[3:]]):
+        with pytest.raises(ProtocolError):
+            parse_batch(bad)
