@@ -1,0 +1,74 @@
+"""Time parameterisation with Ruckig under the Panda's velocity/acceleration/jerk limits.
+
+Two points: one time-optimal, synchronised 7-DoF Ruckig segment. More (an OMPL path): the community
+Ruckig cannot pass through waypoints (intermediate_positions is a Pro feature that tries a cloud API),
+so we run 1-DoF Ruckig along the path's arc length with limits scaled so no joint exceeds its own.
+The arm then does not stop at every OMPL vertex, which would read as spurious "stopped" keyframes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from ruckig import InputParameter, Result, Ruckig, Trajectory
+
+from actors.control.limits import MAX_ACCELERATION, MAX_JERK, MAX_VELOCITY
+
+
+@dataclass
+class JointTrajectory:
+    """q(t), qd(t) for t in [0, duration]."""
+
+    ruckig: Trajectory
+    path: np.ndarray | None  #: arc-length mode: the vertices; None for a direct 7-DoF segment
+    cumulative: np.ndarray | None  #: arc length at each vertex
+
+    @property
+    def duration(self) -> float:
+        return float(self.ruckig.duration)
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        pos, vel, _ = self.ruckig.at_time(min(max(t, 0.0), self.duration))
+        if self.path is None:
+            return np.array(pos), np.array(vel)
+        s, sd = pos[0], vel[0]
+        k = int(np.clip(np.searchsorted(self.cumulative, s, side="right") - 1, 0, len(self.path) - 2))
+        seg = self.path[k + 1] - self.path[k]
+        length = self.cumulative[k + 1] - self.cumulative[k]
+        u = seg / length if length > 0 else np.zeros(7)
+        return self.path[k] + u * (s - self.cumulative[k]), u * sd
+
+
+def _calculate(dofs: int, start, goal, vmax, amax, jmax) -> Trajectory:
+    inp = InputParameter(dofs)
+    inp.current_position, inp.target_position = list(start), list(goal)
+    inp.current_velocity = inp.current_acceleration = [0.0] * dofs
+    inp.target_velocity = inp.target_acceleration = [0.0] * dofs
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = list(vmax), list(amax), list(jerk_floor(jmax))
+    traj = Trajectory(dofs)
+    result = Ruckig(dofs).calculate(inp, traj)
+    if result not in (Result.Working, Result.Finished):
+        raise RuntimeError(f"Ruckig failed: {result}")
+    return traj
+
+
+def jerk_floor(j):
+    return np.maximum(np.asarray(j, dtype=float), 1e-6)
+
+
+def parameterise(path: np.ndarray, velocity_scale: float = 0.5, acceleration_scale: float = 0.5) -> JointTrajectory:
+    """Time-optimal trajectory along ``path`` [N, 7], at rest at both ends."""
+    vmax = MAX_VELOCITY * velocity_scale
+    amax, jmax = MAX_ACCELERATION * acceleration_scale, MAX_JERK * acceleration_scale
+    path = np.asarray(path, dtype=float)
+    if len(path) == 2:
+        return JointTrajectory(_calculate(7, path[0], path[1], vmax, amax, jmax), None, None)
+    lengths = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
+    # the steepest joint per unit arc length bounds the path speed
+    slope = np.max(np.abs(np.diff(path, axis=0)) / np.maximum(lengths[:, None], 1e-12), axis=0)
+    slope = np.maximum(slope, 1e-9)
+    traj = _calculate(1, [0.0], [cumulative[-1]], [np.min(vmax / slope)], [np.min(amax / slope)],
+                      [np.min(jmax / slope)])
+    return JointTrajectory(traj, path, cumulative)

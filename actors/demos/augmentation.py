@@ -1,0 +1,58 @@
+"""Demo augmentation (c2farm_spec.md section 6.2): one demo becomes several keyframe-to-keyframe episodes.
+
+From every ``every_n``-th frame i, the agent "jumps" to each later keyframe in turn: obs(i) -> kf1 ->
+... -> kf_last. The action of a step is the next keyframe's gripper pose + gripper state; the reward
+is 0 except the last step (100, terminal). Step counters restart at 0 in every augmented episode so
+the time feature matches live episodes (the reference's intent).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocol.observation import Observation
+
+SUCCESS_REWARD = 100.0
+
+
+@dataclass
+class DemoEpisode:
+    """A synthetic episode: T decisions, T+1 observations."""
+
+    observations: list[Observation]  #: T+1, ``step`` = 0..T
+    actions: np.ndarray  #: float32 [T, 8]: next keyframe's gripper_pose (7) + gripper_open (1)
+    rewards: np.ndarray  #: float32 [T]
+    terminals: np.ndarray  #: bool [T]
+
+
+def keyframe_action(obs: Observation) -> np.ndarray:
+    return np.concatenate([obs.gripper_pose, [obs.gripper_open]]).astype(np.float32)
+
+
+def demo_to_transitions(observations: Sequence[Observation], keyframes: Sequence[int], every_n: int = 10,
+                        augment: bool = True, success_reward: float = SUCCESS_REWARD) -> list[DemoEpisode]:
+    """The augmented episodes of one demo (only the one from frame 0 when ``augment`` is False)."""
+    episodes = []
+    starts = range(0, len(observations) - 1, every_n) if augment else [0]
+    for i in starts:
+        remaining = [k for k in keyframes if k > i]
+        if not remaining:
+            break
+        frames = [i, *remaining]
+        obs = []
+        for t, f in enumerate(frames):
+            o = copy.copy(observations[f])  # shallow: arrays shared, only the step counter differs
+            o.step = t
+            obs.append(o)
+        actions = np.stack([keyframe_action(observations[k]) for k in remaining])
+        n = len(remaining)
+        rewards = np.zeros(n, dtype=np.float32)
+        rewards[-1] = success_reward
+        terminals = np.zeros(n, dtype=bool)
+        terminals[-1] = True
+        episodes.append(DemoEpisode(obs, actions, rewards, terminals))
+    return episodes

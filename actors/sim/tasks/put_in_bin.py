@@ -1,0 +1,57 @@
+"""L5 put_in_bin (put_rubbish_in_bin): pick the rubbish block, drop it in the bin, let go.
+
+Success needs the rubbish inside the bin AND nothing grasped, so the release is part of the task.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as p
+
+from actors.sim import shapes
+from actors.sim.tasks.base import Task, sample_positions, top_down, waypoint
+
+HALF = 0.02
+BIN_HALF, BIN_WALL, BIN_H = 0.09, 0.005, 0.07
+
+
+class PutInBin(Task):
+    name = "put_in_bin"
+    episode_length = 8
+    obstacles = ("bin",)
+
+    def sample(self, rng):
+        side = rng.choice([-1.0, 1.0])
+        self.bin = np.array([rng.uniform(0.45, 0.6), side * rng.uniform(0.2, 0.28), 0.0])
+        ys = sorted((-side * 0.28, side * 0.05))
+        pts = sample_positions(rng, 3, (0.35, ys[0], HALF), (0.6, ys[1], HALF), 0.1)
+        self.items = pts  # rubbish first, then two "tomatoes"
+        self.yaw = rng.uniform(-np.pi / 4, np.pi / 4)
+
+    def spawn(self, client):
+        b, w, h = BIN_HALF, BIN_WALL, BIN_H
+        parts = [("box", (b, b, w), (0, 0, w)), ("box", (w, b, h / 2), (b - w, 0, h / 2)),
+                 ("box", (w, b, h / 2), (-b + w, 0, h / 2)), ("box", (b, w, h / 2), (0, b - w, h / 2)),
+                 ("box", (b, w, h / 2), (0, -b + w, h / 2))]
+        bodies = {"bin": shapes.compound(client, parts, self.bin, rgba=(0.3, 0.3, 0.35, 1))}
+        bodies["rubbish"] = shapes.box(client, (HALF,) * 3, self.items[0], p.getQuaternionFromEuler((0, 0, self.yaw)),
+                                       rgba=(0.9, 0.9, 0.85, 1), mass=0.05)
+        for i in (1, 2):
+            bodies[f"tomato{i}"] = shapes.sphere(client, 0.025, self.items[i] + (0, 0, 0.005), (0.8, 0.1, 0.1, 1),
+                                                 mass=0.05)
+        return bodies
+
+    def graspables(self):
+        return [(self.bodies["rubbish"], -1)]
+
+    def waypoints(self):
+        pos, _ = self.pose_of("rubbish")
+        q = top_down(self.yaw)
+        above_bin = self.bin + (0, 0, 0.2)
+        return [waypoint(pos + (0, 0, 0.1), q, 1.0), waypoint(pos, q, 0.0), waypoint(pos + (0, 0, 0.2), q, 0.0),
+                waypoint(above_bin, q, 0.0), waypoint(above_bin, q, 1.0)]
+
+    def success(self):
+        pos, _ = self.pose_of("rubbish")
+        inside = np.all(np.abs(pos[:2] - self.bin[:2]) < BIN_HALF - BIN_WALL) and pos[2] < BIN_H
+        return bool(inside) and self.nothing_grasped()
