@@ -25,7 +25,8 @@ from protocol.observation import Observation
 from protocol.role import RoleContext
 from qattention.agent import C2FARM
 from qattention.batch import ObservationBatch
-from qattention.config import QAttentionConfig, network_digest
+from qattention.config import QAttentionConfig
+from qattention.digest import network_digest
 
 log = logging.getLogger("actor")
 
@@ -47,11 +48,16 @@ class Rollout:
         return float(sum(self.rewards))
 
 
-def rollout(env, agent: C2FARM, cameras, seed: int, episode_length: int, explore: bool) -> Rollout:
-    """Play one episode: observe, choose a next-best pose, let the control agent execute it."""
+def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None) -> Rollout | None:
+    """Play one episode: observe, choose a next-best pose, let the control agent execute it.
+
+    Returns None when ``stop`` is set mid-episode (a cut-short episode is not data).
+    """
     obs = env.reset(seed=seed)
     result = Rollout(observations=[obs])
-    for _ in range(episode_length):
+    for _ in range(env.episode_length):
+        if stop is not None and stop.is_set():
+            return None
         act = agent.act(ObservationBatch.from_observations([obs], cameras, agent.device), explore=explore)
         action = np.asarray(act.action[0], dtype=np.float32)
         step = env.step(action)
@@ -157,7 +163,9 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             policy.refresh()
             episode_id = first_id + n
             seed = episode_seed(ctx.seed, ctx.instance, episode_id)
-            r = rollout(env, policy.agent, qconfig.cameras, seed, sim_config.episode_length, explore=True)
+            r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop)
+            if r is None:
+                break
             outbox.send(to_episode(r, ctx.instance, episode_id, sim_config.task, seed, policy.version))
             outbox.resend_due()
             n += 1
@@ -165,7 +173,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             stats["env_steps"] += len(r.actions)
             stats["successes"] += int(r.success)
             stats["unreachable"] += int(r.reason == "unreachable")
-        outbox.flush(timeout_s=10.0)
+        outbox.flush(timeout_s=2.0)  # inside the launcher's grace period; what is still unacknowledged after this is lost
     finally:
         heartbeat.close()
         outbox.close()

@@ -20,7 +20,8 @@ from actors.weights import WeightsFollower, tensors_from_update
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
 from protocol.role import RoleContext
-from qattention.config import QAttentionConfig, network_digest
+from qattention.config import QAttentionConfig
+from qattention.digest import network_digest
 
 log = logging.getLogger("eval")
 
@@ -37,14 +38,18 @@ class EvalResult:
     mean_return: float
 
 
-def evaluate(env, policy: ActingPolicy, config: ActorConfig, episode_length: int, cameras,
+def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras,
              record_dir: Path | None = None, stop=None) -> tuple[float, float, int]:
     """Greedy rollouts on seeds ``eval_seed .. eval_seed + eval_episodes - 1``: (success, return, n)."""
+    if record_dir is not None:
+        record_dir.mkdir(parents=True, exist_ok=True)
     successes, returns, done = 0, 0.0, 0
     for i in range(config.eval_episodes):
         if stop is not None and stop.is_set():
             break
-        r = rollout(env, policy.agent, cameras, config.eval_seed + i, episode_length, explore=False)
+        r = rollout(env, policy.agent, cameras, config.eval_seed + i, explore=False, stop=stop)
+        if r is None:
+            break
         successes += int(r.success)
         returns += r.total_reward
         done += 1
@@ -88,7 +93,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             policy.agent.load_weights(tensors_from_update(update))
             follower.version = update.version
             record = ctx.run_dir / "eval" if config.record_eval else None
-            success, mean_return, n = evaluate(env, policy, config, sim_config.episode_length, qconfig.cameras,
+            success, mean_return, n = evaluate(env, policy, config, qconfig.cameras,
                                                record, ctx.stop)
             if n < config.eval_episodes:
                 break  # stopped mid-evaluation: a partial result would bias the curve

@@ -130,8 +130,41 @@ class RoleTable:
                 "gone": sum(not r["alive"] for r in roles),
                 "rejected_messages": self.rejected,
                 "last_error": self.last_error,
+                "summary": summarise(roles),
                 "roles": roles,
             }
+
+
+def summarise(roles: list[dict]) -> dict:
+    """The few numbers a person watches during training, from the alive roles' counters.
+
+    ``policy_lag`` is, per actor, how many weights versions it is behind the learner.
+    """
+
+    def counters(role: str) -> list[dict]:
+        return [r["counters"] for r in roles if r["role"] == role and r["alive"]]
+
+    learner = next(iter(counters("learner")), {})
+    replay = next(iter(counters("replay")), {})
+    evaluation = next(iter(counters("eval")), {})
+    version = learner.get("weights_version")
+    actors = [r for r in roles if r["role"] == "actor" and r["alive"]]
+    return {
+        "updates": learner.get("updates"),
+        "updates_per_s": learner.get("updates_per_s"),
+        "env_steps": sum(c.get("env_steps", 0.0) for c in counters("actor")),
+        "episodes": sum(c.get("episodes", 0.0) for c in counters("actor")),
+        "replay_size": replay.get("size_transitions"),
+        "samples_per_insert": replay.get("samples_per_insert"),
+        "weights_version": version,
+        "policy_lag": {
+            r["instance"]: version - r["counters"]["weights_version"]
+            for r in actors
+            if version is not None and "weights_version" in r["counters"]
+        },
+        "eval_success": evaluation.get("eval_success"),
+        "eval_version": evaluation.get("eval_version"),
+    }
 
 
 class FabricFeed:

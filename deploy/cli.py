@@ -11,7 +11,6 @@ Every subcommand resolves the same typed config (see ``deploy/config.py``)::
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import os
 import socket
@@ -19,17 +18,19 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 from deploy.config_loader import ConfigError, parse_override
 
-#: role -> (module with ``run(config, ctx) -> int``, RunConfig section handed to it, default instance)
-ROLE_ENTRY = {
-    "router": ("deploy.router", "fabric", "router"),
-    "replay": ("replay_server.service", "replay", "replay"),
-    "learner": ("learner.service", "learner", "learner"),
-    "actor": ("actors.service", "actor", "actor-0"),
-    "dashboard": ("dashboard.service", "dashboard", "dashboard"),
+#: role -> default instance name (the entry points live in deploy/roles.py)
+DEFAULT_INSTANCE = {
+    "router": "router",
+    "replay": "replay",
+    "learner": "learner",
+    "actor": "actor-0",
+    "eval": "eval",
+    "demo_source": "demos",
+    "dashboard": "dashboard",
 }
 
 PARENT_ENV = "C2FARM_PARENT_PID"  # set by the launcher: a role stops when its launcher is gone
@@ -39,9 +40,10 @@ log = logging.getLogger("c2farm")
 DESCRIPTION = """\
 C2F-ARM (coarse-to-fine Q-attention) as a distributed actor-learner service.
 
-Roles: a Zenoh router (the hub), a replay server, a learner, N actors and a dashboard.
-`c2farm launch` starts all of them on this machine; the other subcommands start one
-role by hand, e.g. on another machine pointed at the hub with --connect.
+Roles: a Zenoh router (the hub), a replay server, a learner, N actors, an evaluator, a
+demo source and a dashboard. `c2farm launch` starts all of them on this machine; the other
+subcommands start one role by hand, e.g. on another machine pointed at the hub with
+--connect. `c2farm demos` writes scripted demonstrations as MCAP files.
 
 Configuration: defaults <- --preset <- --config FILE <- flags <- --set section.key=value.
 See the resolved config (every key, documented) with `c2farm launch --print-config`.
@@ -104,6 +106,7 @@ def _common(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="print the resolved config with a comment on every key, then exit",
     )
+    g.add_argument("--task", metavar="NAME", help="task every actor steps (sim.task), e.g. reach_target")
     g.add_argument("--log-level", default="INFO", help="Python log level (default: %(default)s)")
 
 
@@ -144,6 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
         "replay": "run the replay server (stores episodes, serves batches to the learner)",
         "learner": "run the learner (trains the Q-attention cascade, broadcasts weights)",
         "actor": "run one actor (steps the PyBullet Panda task, sends episodes)",
+        "eval": "run the evaluator (greedy policy on fixed seeds, once per weights version)",
+        "demo_source": "publish the run's scripted demos to the replay (generating them if missing)",
         "dashboard": "run the HTTP dashboard (GET /, /api/status, /healthz, /metrics)",
     }
     for role, text in helps.items():
@@ -152,12 +157,21 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument(
             "--instance",
             metavar="NAME",
-            default=ROLE_ENTRY[role][2],
+            default=DEFAULT_INSTANCE[role],
             help="unique name of this process within its role (default: %(default)s)",
         )
         if role == "dashboard":
             p.add_argument("--host", metavar="HOST", help="bind address (dashboard.host, default 127.0.0.1)")
             p.add_argument("--port", type=int, metavar="PORT", help="HTTP port (dashboard.port, default 8080)")
+    from actors.demos.cli import add_arguments
+
+    p = sub.add_parser(
+        "demos",
+        help="write scripted demonstrations of a task as MCAP files",
+        description="Run a task's scripted waypoints through the control agent and record every "
+        "control step as one MCAP file per episode (opens in Foxglove).",
+    )
+    add_arguments(p)
     return parser
 
 
@@ -169,6 +183,7 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
         if value is not None:
             out.setdefault(section, {})[key] = value
 
+    put("sim", "task", args.task)
     put("run", "run_id", args.run_id)
     put("run", "seed", args.seed)
     put("run", "runs_dir", args.runs_dir)
@@ -254,9 +269,9 @@ def _watch_parent(parent_pid: int, stop: threading.Event) -> None:
 
 def run_role(role: str, config, instance: str) -> int:
     """Run one role in this process until it is told to stop; return its exit code."""
+    from deploy.roles import ROLES
     from protocol.role import RoleContext, stop_on_signals
 
-    module_name, section, _ = ROLE_ENTRY[role]
     ctx = RoleContext(
         run_id=config.run.run_id,
         instance=instance,
@@ -273,14 +288,9 @@ def run_role(role: str, config, instance: str) -> int:
         log.error("no Zenoh router answers on %s (start `c2farm router` or `c2farm launch` first)",
                   ", ".join(config.fabric.connect))
         return 2
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        log.error("role %s is not available: %s", role, exc)
-        return 2
-    entry: Callable[..., int] = module.run
+    entry = ROLES[role][0]
     log.info("%s %s starting (run %s, pid %d)", role, instance, ctx.run_id, os.getpid())
-    code = entry(getattr(config, section, None), ctx)
+    code = entry(config, ctx)
     log.info("%s %s stopped (exit %s)", role, instance, code)
     return int(code or 0)
 
@@ -290,6 +300,10 @@ def run_role(role: str, config, instance: str) -> int:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "demos":
+        from actors.demos.cli import run
+
+        return run(args)
     logging.basicConfig(
         level=getattr(logging, str(args.log_level).upper(), logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

@@ -26,12 +26,19 @@ from dashboard.config import DashboardConfig
 from deploy.config_loader import ConfigError, field_docs, from_dict, load_yaml, merge, to_dict
 from protocol import keys
 from protocol.fabric import FabricConfig
+from actors.config import ActorConfig
+from actors.sim.config import SimConfig
+from learner.config import LearnerConfig
+from qattention.config import QAttentionConfig
 from replay_server.config import ReplayConfig
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 PRESET_DIRS = (Path.cwd() / "configs", REPO_ROOT / "configs")
 DEFAULT_PRESET = "cpu-small"
-ROLES = ("router", "replay", "learner", "actor", "dashboard")
+#: Every role, in the order the launcher starts them.
+ROLES = ("router", "replay", "dashboard", "learner", "demo_source", "actor", "eval")
+#: Roles that finish their job and exit; restarted only when they fail.
+ONE_SHOT_ROLES = ("demo_source",)
 
 
 @dataclass
@@ -53,7 +60,10 @@ class LaunchConfig:
 
     roles: list[str] = field(default_factory=lambda: list(ROLES))  #: roles started here (others run elsewhere)
     num_actors: int = 2  #: actor processes to start
-    restart: list[str] = field(default_factory=lambda: ["actor"])  #: roles restarted when their process dies
+    restart: list[str] = field(  #: roles restarted when their process dies (one-shot roles only on failure)
+        default_factory=lambda: ["replay", "learner", "demo_source", "actor", "eval"]
+    )
+    progress_every_s: float = 30.0  #: print a progress line (updates, env steps, eval success) this often; 0 = never
     restart_backoff_s: float = 1.0  #: wait before the first restart of an instance; doubles each time
     restart_backoff_max_s: float = 30.0  #: ceiling of the restart wait
     max_restarts: int = 20  #: restarts per instance before the launcher gives up on it
@@ -73,6 +83,20 @@ class LaunchConfig:
 
 
 @dataclass
+class DemoConfig:
+    """Scripted demonstrations fed to the replay at the start of a run."""
+
+    episodes: int = 10  #: demos per run (the paper's 10); 0 = none
+    directory: str = "demos"  #: demos live in <directory>/<task>-<cameras>-<size>px/, shared by runs; made if missing
+    seed: int = 0  #: seed of the first scripted demo
+    every_n: int = 10  #: demo augmentation: a keyframe episode starts every this many control steps
+
+    def __post_init__(self) -> None:
+        if self.episodes < 0 or self.every_n < 1:
+            raise ValueError("episodes must be >= 0 and every_n >= 1")
+
+
+@dataclass
 class RunConfig:
     """Every role's settings; one section per concern."""
 
@@ -81,6 +105,11 @@ class RunConfig:
     launch: LaunchConfig = field(default_factory=LaunchConfig)  #: the single-machine launcher
     dashboard: DashboardConfig = field(default_factory=DashboardConfig)  #: the HTTP status dashboard
     replay: ReplayConfig = field(default_factory=ReplayConfig)  #: the replay server
+    learner: LearnerConfig = field(default_factory=LearnerConfig)  #: the learner
+    actor: ActorConfig = field(default_factory=ActorConfig)  #: actors and the evaluator
+    sim: SimConfig = field(default_factory=SimConfig)  #: the PyBullet Panda task every actor steps
+    demos: DemoConfig = field(default_factory=DemoConfig)  #: scripted demonstrations
+    qattention: QAttentionConfig = field(default_factory=QAttentionConfig)  #: the C2F-ARM networks and loss (cameras, episode length and scene bounds come from sim)
 
     @property
     def run_dir(self) -> Path:

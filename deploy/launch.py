@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import subprocess
@@ -26,9 +27,8 @@ from pathlib import Path
 from typing import IO, Optional
 
 from deploy.cli import PARENT_ENV, tcp_endpoints, wait_for_router
-from deploy.config import RunConfig
-
-START_ORDER = ("router", "replay", "learner", "actor", "dashboard")
+from deploy.config import ONE_SHOT_ROLES, ROLES, RunConfig
+from deploy.cli import DEFAULT_INSTANCE
 
 
 @dataclass
@@ -58,13 +58,13 @@ class Launcher:
         self._signals = 0
         self.children: list[Child] = []
         launch = config.launch
-        for role in START_ORDER:
-            if role not in launch.roles:
+        for role in ROLES:
+            if role not in launch.roles or (role == "demo_source" and config.demos.episodes == 0):
                 continue
             if role == "actor":
                 self.children += [Child("actor", f"actor-{i}") for i in range(launch.num_actors)]
             else:
-                self.children.append(Child(role, role))
+                self.children.append(Child(role, DEFAULT_INSTANCE[role]))
 
     # -- output ----------------------------------------------------------------------
 
@@ -140,6 +140,7 @@ class Launcher:
         """Start everything, supervise until a signal, stop everything; return an exit code."""
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         code = 0
+        (self.run_dir / "launched_at").write_text(f"{time.time():.3f}\n")
         try:
             code = self._start_all()
             if code == 0:
@@ -191,8 +192,12 @@ class Launcher:
 
     def _supervise(self) -> int:
         launch = self.config.launch
+        next_progress = time.monotonic() + launch.progress_every_s
         while not self.stop.wait(0.2):
             now = time.monotonic()
+            if launch.progress_every_s > 0 and now >= next_progress and "dashboard" in launch.roles:
+                next_progress = now + launch.progress_every_s
+                self._progress()
             for child in self.children:
                 if child.done:
                     continue
@@ -204,7 +209,10 @@ class Launcher:
                 if child.alive:
                     continue
                 code = child.proc.returncode
-                if child.role in launch.restart and child.restarts < launch.max_restarts:
+                if child.role in ONE_SHOT_ROLES and code == 0:
+                    child.done = True
+                    self.say(f"{child.instance} finished its job")
+                elif child.role in launch.restart and child.restarts < launch.max_restarts:
                     delay = min(launch.restart_backoff_s * 2**child.restarts, launch.restart_backoff_max_s)
                     child.restart_at = now + delay
                     self.say(
@@ -215,10 +223,25 @@ class Launcher:
                     child.done = True
                     why = "restart limit reached" if child.role in launch.restart else "not restarted"
                     self.say(f"{child.instance} exited with code {code} ({why})")
-            if self.children and all(c.done for c in self.children):
+            if self.children and all(c.done for c in self.children if c.role not in ONE_SHOT_ROLES):
                 self.say("every role has exited")
                 return 1
         return 0
+
+    def _progress(self) -> None:
+        """One console line from the dashboard's summary: updates, env steps, replay, eval."""
+        import httpx
+
+        logging.getLogger("httpx").setLevel(logging.WARNING)
+        url = f"http://{self.config.dashboard.host}:{self.config.dashboard.port}/api/status"
+        try:
+            summary = httpx.get(url, timeout=2.0).json().get("summary", {})
+        except (httpx.HTTPError, ValueError):
+            return
+        parts = [f"{key.replace('_', ' ')} {value:g}" if isinstance(value, (int, float)) else f"{key} {value}"
+                 for key, value in summary.items() if value is not None and key != "policy_lag"]
+        if parts:
+            self.say("progress: " + ", ".join(parts))
 
     def _shutdown(self) -> None:
         """SIGTERM all (router last), SIGKILL after the grace period, reap everything."""

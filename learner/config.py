@@ -9,7 +9,7 @@ from dataclasses import dataclass
 class LearnerConfig:
     """How the learner samples, trains, publishes and checkpoints."""
 
-    replay_endpoint: str = "tcp://127.0.0.1:5560"  #: ZeroMQ endpoint of the replay server's sample service
+    replay_endpoint: str = ""  #: ZeroMQ endpoint of the replay's sample service; "" = replay.zmq_endpoint on this host
     batch_size: int = 128  #: transitions per update (the paper's 128; the cpu-small preset uses 8)
     prefetch: int = 2  #: sample requests kept in flight so the learner never waits on a round trip
     device: str = "auto"  #: "auto" (CUDA when present), "cpu" or "cuda[:N]"

@@ -6,7 +6,6 @@ replay server (ZeroMQ), the agent and the fabric (Zenoh), and keeps the run resu
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import random
@@ -26,7 +25,8 @@ from protocol.role import RoleContext
 from qattention.agent import C2FARM
 from qattention.batch import TransitionBatch
 from qattention.config import QAttentionConfig
-from replay_server.client import ReplayClient
+from qattention.digest import network_digest
+from replay_server.client import ReplayClient, ReplayError, ReplayTimeout
 
 log = logging.getLogger("learner")
 
@@ -35,11 +35,6 @@ def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
-
-
-def config_digest(config: QAttentionConfig) -> str:
-    """Short hash of the network-shaping config, so actors can refuse incompatible weights."""
-    return hashlib.sha256(json.dumps(asdict(config), sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 class Learner:
@@ -108,7 +103,7 @@ class Learner:
             "weights_version": self.version,
             "samples": self.samples,
             **self._rates,
-            **{k: v for k, v in self._last_metrics.items() if k in ("loss", "q_trans_mean")},
+            **{k: v for k, v in self._last_metrics.items() if k.startswith(("loss/", "q_chosen/"))},
         }
 
 
@@ -118,7 +113,7 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
     session = open_session(ctx.fabric)
     heartbeat = Heartbeat(session, ctx.run_id, "learner", ctx.instance, counters=learner.counters,
                           info=lambda: {"device": str(learner.device)})
-    publisher = WeightsPublisher(session, ctx.run_id, config_digest(qconfig))
+    publisher = WeightsPublisher(session, ctx.run_id, network_digest(qconfig))
     client = ReplayClient(config.replay_endpoint, config.batch_size, prefetch=config.prefetch)
     metrics_log = MetricsLog(ctx.run_dir / "metrics",
                              ctx.run_dir / "tensorboard" if config.tensorboard else None)
@@ -130,10 +125,10 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
         while not ctx.stop.is_set():
             if config.max_updates and learner.step >= config.max_updates:
                 break
-            batch = client.sample(timeout_s=config.sample_timeout_s)
-            if batch is None or batch.error:
-                reason = "timed out" if batch is None else batch.error
-                log.info("no batch yet (%s); asking again", reason)
+            try:
+                batch = client.sample(timeout_s=config.sample_timeout_s)
+            except (ReplayTimeout, ReplayError) as exc:
+                log.info("no batch yet (%s); asking again", exc)
                 continue
             metrics, priorities = learner.train_step(batch.arrays)
             client.update_priorities(batch.arrays["indices"], batch.arrays["keys"], priorities)

@@ -50,6 +50,10 @@ class Plan:
     checks: int
 
 
+#: Largest joint-space step (radians) between two collision checks along a motion.
+CHECK_RESOLUTION = 0.01
+
+
 def segment_is_free(world: CollisionWorld, a: np.ndarray, b: np.ndarray, resolution: float = 0.02) -> bool:
     n = max(2, int(np.ceil(np.abs(b - a).max() / resolution)) + 1)
     return all(world.is_valid(a + (b - a) * t) for t in np.linspace(0.0, 1.0, n))
@@ -80,7 +84,8 @@ class MotionPlanner:
         ss = og.SimpleSetup(self.space)
         ss.setStateValidityChecker(lambda s: self.world.is_valid([s[i] for i in range(7)]))
         si = ss.getSpaceInformation()
-        si.setStateValidityCheckingResolution(0.005)
+        # OMPL's resolution is a fraction of the space's extent: make it CHECK_RESOLUTION radians.
+        si.setStateValidityCheckingResolution(CHECK_RESOLUTION / self.space.getMaximumExtent())
         a, b = self.space.allocState(), self.space.allocState()
         inside = np.clip(start, LOWER + 1e-6, UPPER - 1e-6)  # the physics may sit a hair past a limit
         for i in range(7):
@@ -94,4 +99,8 @@ class MotionPlanner:
         path = ss.getSolutionPath()
         wps = np.array([[path.getState(k)[i] for i in range(7)] for k in range(path.getStateCount())])
         wps[0] = start
+        # OMPL checks motions at discrete states; re-check the final path as densely as the
+        # executor will move, so a grazing contact between two checks never reaches the robot.
+        if not all(segment_is_free(self.world, x, y, CHECK_RESOLUTION) for x, y in zip(wps[:-1], wps[1:])):
+            return None
         return Plan(wps, True, self.world.checks)

@@ -1,0 +1,107 @@
+"""Each role's entry point, fed the sections of the one run config it needs.
+
+Roles never import each other; this module is where they meet the config. Heavy imports
+(torch, PyBullet) stay inside the functions, so starting the router or the dashboard does
+not pay for them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+from typing import Callable
+
+from deploy.config import RunConfig
+from protocol.role import RoleContext
+
+log = logging.getLogger("c2farm")
+
+
+def network_config(config: RunConfig):
+    """The Q-attention config with the task-dependent keys derived from ``sim``.
+
+    Cameras, episode length and the depth-0 scene bounds always come from the simulator
+    section and the task, so actors, evaluators and the learner cannot disagree on them.
+    """
+    from actors.sim.tasks import make_task
+
+    task = make_task(config.sim.task)
+    return config.qattention.replace(
+        cameras=tuple(config.sim.cameras),
+        episode_length=config.sim.episode_length or task.episode_length,
+        scene_bounds=tuple(float(b) for b in task.scene_bounds),
+    )
+
+
+def demo_dir(config: RunConfig) -> Path:
+    """Demos are shared between runs of the same task, cameras and image size."""
+    sim = config.sim
+    name = f"{sim.task}-{'+'.join(sim.cameras)}-{sim.image_size}px"
+    return Path(config.demos.directory) / name
+
+
+def router(config: RunConfig, ctx: RoleContext) -> int:
+    from deploy.router import run
+
+    return run(config.fabric, ctx)
+
+
+def replay(config: RunConfig, ctx: RoleContext) -> int:
+    from replay_server.service import run
+
+    return run(config.replay, ctx)
+
+
+def learner(config: RunConfig, ctx: RoleContext) -> int:
+    from learner.train import run
+
+    settings = config.learner
+    if not settings.replay_endpoint:  # same host as the replay: dial what it binds
+        endpoint = config.replay.zmq_endpoint.replace("://*:", "://127.0.0.1:").replace("://0.0.0.0:", "://127.0.0.1:")
+        settings = dataclasses.replace(settings, replay_endpoint=endpoint)
+    return run(settings, network_config(config), ctx)
+
+
+def actor(config: RunConfig, ctx: RoleContext) -> int:
+    from actors.actor_loop import run
+
+    return run(config.actor, config.sim, network_config(config), ctx)
+
+
+def evaluator(config: RunConfig, ctx: RoleContext) -> int:
+    from actors.evaluation import run
+
+    return run(config.actor, config.sim, network_config(config), ctx)
+
+
+def demo_source(config: RunConfig, ctx: RoleContext) -> int:
+    """Generate the run's demos if they are missing, then publish them to the replay."""
+    from actors.demo_source import run
+    from actors.demos.generate import generate_demos
+
+    directory = demo_dir(config)
+    have = len(list(directory.glob("*.mcap"))) if directory.is_dir() else 0
+    if have < config.demos.episodes:
+        log.info("generating %d demos of %s in %s", config.demos.episodes, config.sim.task, directory)
+        generate_demos(config.sim.task, config.demos.episodes, seed=config.demos.seed, out_dir=directory,
+                       cameras=tuple(config.sim.cameras), image_size=config.sim.image_size, progress=False)
+    return run(directory, config.actor, ctx, every_n=config.demos.every_n, limit=config.demos.episodes)
+
+
+def dashboard(config: RunConfig, ctx: RoleContext) -> int:
+    from dashboard.service import run
+
+    return run(config.dashboard, ctx)
+
+
+#: role -> (entry point, default instance name)
+ROLES: dict[str, tuple[Callable[[RunConfig, RoleContext], int], str]] = {
+    "router": (router, "router"),
+    "replay": (replay, "replay"),
+    "learner": (learner, "learner"),
+    "actor": (actor, "actor-0"),
+    "eval": (evaluator, "eval"),
+    "demo_source": (demo_source, "demos"),
+    "dashboard": (dashboard, "dashboard"),
+}

@@ -1,0 +1,84 @@
+"""TD targets and losses of one update (spec §5), kept free of optimiser state.
+
+Per depth: double-DQN target (online argmax on s_t+1, target-net value), at the last depth the
+mean over translation, 3 rotation axes and gripper; y = max(r*scale + gamma*(1-terminal)*q', 0);
+Huber TD per head, averaged; L1 Q-regulariser over all outputs; importance-weighted mean.
+Deviation: the s_t+1 cube of depth d>=1 is centred on the online net's greedy depth d-1 choice
+at s_t+1 (the cascade's own max), not on a coordinate stored with the next observation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from .cascade import split_rot_grip
+from .voxelise import child_bounds, flat_index, unflatten_index, voxel_centre
+
+
+def bootstrap_value(q_online, rg_online, q_target, rg_target, bins: int):
+    """Double-DQN value [B] plus the online argmax voxel [B, 3] of one depth."""
+    b, v = q_online.shape[0], q_online.shape[1]
+    a = q_online.reshape(b, -1).argmax(1)
+    values = [q_target.reshape(b, -1).gather(1, a[:, None])[:, 0]]
+    if rg_online is not None:
+        rot_on, grip_on = split_rot_grip(rg_online, bins)
+        rot_tg, grip_tg = split_rot_grip(rg_target, bins)
+        values += list(rot_tg.gather(2, rot_on.argmax(2, keepdim=True))[..., 0].unbind(1))
+        values.append(grip_tg.gather(1, grip_on.argmax(1, keepdim=True))[:, 0])
+    return torch.stack(values, 1).float().mean(1), unflatten_index(a, v)
+
+
+def td_target(reward, terminal, q_next, config) -> torch.Tensor:
+    """y = max(r * reward_scale (negatives zeroed) + gamma * (1 - terminal) * q_next, 0)."""
+    r = (reward * config.reward_scale).clamp_min(0.0)
+    return (r + config.gamma * (~terminal).float() * q_next).clamp_min(0.0)
+
+
+@dataclass
+class DepthLoss:
+    loss: torch.Tensor  #: scalar to minimise
+    delta: torch.Tensor  #: [B] mean Huber TD error over heads (detached), for priorities
+    qreg: torch.Tensor  #: [B] Q regulariser (detached)
+    q_chosen: torch.Tensor  #: [B] online translation Q at the label (detached)
+    td_heads: torch.Tensor  #: [B, heads] Huber TD per head (detached)
+
+
+def depth_loss(q_trans, q_rg, voxel_index, rot_grip, y, weights, config) -> DepthLoss:
+    """Loss of one depth given its online outputs and labels (voxel [B, 3], rot_grip [B, 4])."""
+    b, v = q_trans.shape[0], config.voxel_size
+    q_flat = q_trans.reshape(b, -1).float()
+    chosen = q_flat.gather(1, flat_index(voxel_index, v)[:, None])[:, 0]
+    td = [F.smooth_l1_loss(chosen, y, reduction="none")]
+    qreg = config.lambda_trans_qreg * q_flat.abs().mean(1)
+    if q_rg is not None:
+        q_rg = q_rg.float()
+        rot, grip = split_rot_grip(q_rg, config.rotation_bins)
+        rot_chosen = rot.gather(2, rot_grip[:, :3, None])[..., 0]
+        td += [F.smooth_l1_loss(rot_chosen[:, i], y, reduction="none") for i in range(3)]
+        td.append(F.smooth_l1_loss(grip.gather(1, rot_grip[:, 3:4])[:, 0], y, reduction="none"))
+        qreg = qreg + config.lambda_rot_qreg * q_rg.abs().mean(1)
+    td = torch.stack(td, 1)
+    delta = td.mean(1)
+    loss = ((delta + qreg) * weights).mean()
+    return DepthLoss(loss, delta.detach(), qreg.detach(), chosen.detach(), td.detach())
+
+
+def priorities(deltas: list[torch.Tensor], alpha: float) -> torch.Tensor:
+    """Per-sample priority, PER alpha applied: ``mean_d(sqrt(delta_d) / max_batch sqrt(delta_d)) ** alpha``.
+
+    Each depth's term is batch-normalised as in the reference, but depths are combined once
+    (the reference counted depth 0 twice, spec §10.7); the mean keeps priorities in (0, 1].
+    """
+    terms = []
+    for delta in deltas:
+        p = torch.sqrt(delta + 1e-10)
+        terms.append(p / p.max())
+    return torch.stack(terms, 0).mean(0) ** alpha
+
+
+def next_bounds(index: torch.Tensor, bounds: torch.Tensor, config, depth: int) -> torch.Tensor:
+    """Bounds of depth ``depth + 1`` around the centre of ``index`` in ``bounds``."""
+    return child_bounds(voxel_centre(index, bounds, config.voxel_size), config.offset(depth + 1))
