@@ -60,6 +60,9 @@ def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None) ->
             return None
         act = agent.act(ObservationBatch.from_observations([obs], cameras, agent.device), explore=explore)
         action = np.asarray(act.action[0], dtype=np.float32)
+        # The labels actually chosen (per-depth voxels, cube centres, bins) travel with the
+        # observation: re-encoding the continuous pose would not always give them back.
+        obs.extras.update({name: np.asarray(v[0]) for name, v in act.replay_elements().items()})
         step = env.step(action)
         obs = step.observation
         result.observations.append(obs)
@@ -67,13 +70,32 @@ def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None) ->
         result.rewards.append(float(step.reward))
         result.terminals.append(bool(step.terminal))
         if step.terminal:
+            pad_act_labels(result.observations, agent.config.depths)
             result.success = bool(step.success)
             result.reason = "success" if step.success else ("unreachable" if step.unreachable else "failed")
             return result
+    pad_act_labels(result.observations, agent.config.depths)
     # Out of decisions: the reference treats a timeout as terminal too (c2farm_spec §10.5).
     result.terminals[-1] = True
     result.timeout, result.reason = True, "timeout"
     return result
+
+
+def pad_act_labels(observations: list[Observation], depths: int) -> None:
+    """Give observations without act-time labels (the final one, demo frames) zero labels,
+    so every episode in a replay carries the same arrays; the learner ignores them there."""
+    blank = act_label_blanks(depths)
+    for obs in observations:
+        for name, value in blank.items():
+            obs.extras.setdefault(name, value)
+
+
+def act_label_blanks(depths: int) -> dict[str, np.ndarray]:
+    return {
+        "voxel_indices": np.zeros((depths, 3), np.int64),
+        "attention_coordinates": np.zeros((depths, 3), np.float32),
+        "rot_grip_indices": np.zeros(4, np.int64),
+    }
 
 
 def to_episode(r: Rollout, actor_id: str, episode_id: int, task: str, seed: int, version: int) -> Episode:

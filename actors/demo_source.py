@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from actors.actor_loop import pad_act_labels
 from actors.config import ActorConfig
 from actors.demos.augmentation import demo_to_transitions
 from actors.demos.keyframes import discover_keyframes
@@ -29,13 +30,17 @@ log = logging.getLogger("demos")
 IDS_PER_DEMO = 10_000
 
 
-def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10) -> list[Episode]:
-    """The demo-augmented episodes of one demo file, ready to publish."""
+def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10, depths: int = 2) -> list[Episode]:
+    """The demo-augmented episodes of one demo file, ready to publish.
+
+    ``depths`` sizes the (unused, zero) act-time label arrays that live episodes carry.
+    """
     demo = load_demo(path)
     keyframes = discover_keyframes(demo.observations)
     episodes = []
     for i, part in enumerate(demo_to_transitions(demo.observations, keyframes, every_n=every_n)):
         steps = len(part.actions)
+        pad_act_labels(part.observations, depths)
         episodes.append(Episode(
             actor_id=actor_id,
             episode_id=demo_index * IDS_PER_DEMO + i,
@@ -54,7 +59,8 @@ def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10)
     return episodes
 
 
-def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10, limit: int = 0) -> int:
+def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10, limit: int = 0,
+        depths: int = 2) -> int:
     """Publish every demo in ``demo_dir`` (the first ``limit`` if set) and wait for the acks."""
     files = sorted(Path(demo_dir).glob("*.mcap"))[: limit or None]
     if not files:
@@ -70,7 +76,7 @@ def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10
         for index, path in enumerate(files):
             if ctx.stop.is_set():
                 break
-            for episode in demo_episodes(path, index, ctx.instance, every_n):
+            for episode in demo_episodes(path, index, ctx.instance, every_n, depths):
                 outbox.send(episode)
                 published["demo_episodes"] += 1
             published["demos"] += 1

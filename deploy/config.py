@@ -60,6 +60,7 @@ class LaunchConfig:
 
     roles: list[str] = field(default_factory=lambda: list(ROLES))  #: roles started here (others run elsewhere)
     num_actors: int = 2  #: actor processes to start
+    instance_prefix: str = ""  #: prepended to the instance names started here, e.g. "box3-" (unique per machine)
     restart: list[str] = field(  #: roles restarted when their process dies (one-shot roles only on failure)
         default_factory=lambda: ["replay", "learner", "demo_source", "actor", "eval"]
     )

@@ -61,10 +61,11 @@ class Launcher:
         for role in ROLES:
             if role not in launch.roles or (role == "demo_source" and config.demos.episodes == 0):
                 continue
+            prefix = launch.instance_prefix
             if role == "actor":
-                self.children += [Child("actor", f"actor-{i}") for i in range(launch.num_actors)]
+                self.children += [Child("actor", f"{prefix}actor-{i}") for i in range(launch.num_actors)]
             else:
-                self.children.append(Child(role, DEFAULT_INSTANCE[role]))
+                self.children.append(Child(role, prefix + DEFAULT_INSTANCE[role]))
 
     # -- output ----------------------------------------------------------------------
 

@@ -86,7 +86,8 @@ def demo_source(config: RunConfig, ctx: RoleContext) -> int:
         log.info("generating %d demos of %s in %s", config.demos.episodes, config.sim.task, directory)
         generate_demos(config.sim.task, config.demos.episodes, seed=config.demos.seed, out_dir=directory,
                        cameras=tuple(config.sim.cameras), image_size=config.sim.image_size, progress=False)
-    return run(directory, config.actor, ctx, every_n=config.demos.every_n, limit=config.demos.episodes)
+    return run(directory, config.actor, ctx, every_n=config.demos.every_n, limit=config.demos.episodes,
+               depths=config.qattention.depths)
 
 
 def dashboard(config: RunConfig, ctx: RoleContext) -> int:

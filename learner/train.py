@@ -19,6 +19,7 @@ from learner.checkpoint import load_latest, save_checkpoint
 from learner.config import LearnerConfig
 from learner.metrics import MetricsLog
 from learner.weights import WeightsPublisher
+from protocol.episode import EXTRA_PREFIX
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
 from protocol.role import RoleContext
@@ -91,6 +92,8 @@ class Learner:
 
     # -- one update ------------------------------------------------------------------
     def train_step(self, arrays: dict[str, np.ndarray]) -> tuple[dict[str, float], np.ndarray]:
+        # Act-time labels travel as observation extras ("extra_voxel_indices", ...).
+        arrays = {name.removeprefix(EXTRA_PREFIX): a for name, a in arrays.items()}
         batch = TransitionBatch.from_arrays(arrays, self.qconfig.cameras, self.device)
         metrics, priorities = self.agent.update(batch)
         self.step += 1
@@ -137,7 +140,8 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
             window_samples += int(batch.arrays["indices"].shape[0])
             if learner.step % config.publish_every == 0:
                 learner.version += 1
-                publisher.publish(learner.agent.weights(), learner.version, learner.step)
+                env_steps = int(batch.info.get("transitions_inserted", 0))
+                publisher.publish(learner.agent.weights(), learner.version, learner.step, env_steps)
             if learner.step % config.log_every == 0:
                 elapsed = time.monotonic() - window_start
                 learner._rates = {"updates_per_s": window_updates / elapsed, "samples_per_s": window_samples / elapsed}

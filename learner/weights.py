@@ -29,10 +29,15 @@ class WeightsPublisher:
         self.version = 0
         self._queryable = session.declare_queryable(self._key, self._answer)
 
-    def publish(self, weights: dict[str, torch.Tensor], version: int, learner_step: int) -> int:
-        """Encode and broadcast ``weights`` as ``version``; returns the message size in bytes."""
+    def publish(self, weights: dict[str, torch.Tensor], version: int, learner_step: int, env_steps: int = 0) -> int:
+        """Encode and broadcast ``weights`` as ``version``; returns the message size in bytes.
+
+        ``env_steps``: transitions the replay had received (demos included), for learning curves.
+        """
         tensors = {name: t.detach().float().cpu().numpy() for name, t in weights.items()}
-        payload = encode(WeightsUpdate(version, learner_step, tensors, self._digest, published_at=time.time()))
+        update = WeightsUpdate(version, learner_step, tensors, self._digest, published_at=time.time(),
+                               env_steps=env_steps)
+        payload = encode(update)
         with self._lock:
             self._latest, self.version = payload, version
         self._publisher.put(payload)

@@ -52,7 +52,7 @@ class WeightsUpdate:
     tensors: dict[str, np.ndarray]  #: parameter name -> array (float32, or float16 to halve the size)
     config_digest: str = ""  #: hash of the network config, so an actor can refuse a mismatch
     published_at: float = 0.0  #: sender's wall clock (s since the epoch): receivers measure broadcast latency
-    env_steps: int = 0  #: environment transitions the replay had received when published (for learning curves)
+    env_steps: int = 0  #: transitions the replay had received when published, demos included (learning curves)
 
 
 @dataclass

@@ -38,7 +38,9 @@ class Output:
         return "\n".join(self.lines)
 
 
-@pytest.mark.parametrize("command", ["launch", "router", "replay", "learner", "actor", "dashboard"])
+@pytest.mark.parametrize(
+    "command", ["launch", "router", "replay", "learner", "actor", "eval", "demo_source", "dashboard"]
+)
 def test_every_subcommand_explains_its_options(command):
     result = subprocess.run(C2FARM + [command, "--help"], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert result.returncode == 0
@@ -58,6 +60,8 @@ def test_launch_runs_every_role_restarts_a_killed_actor_and_stops_clean(tmp_path
             "--router-port", str(router_port), "--dashboard-port", str(dashboard_port),
             "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{zmq_port}",
             "--set", "launch.restart_backoff_s=3",  # long enough to watch the actor be gone
+            "--set", "demos.episodes=0",  # training end to end is tests/test_training_e2e.py
+            "--set", "launch.roles=[router,replay,dashboard,learner,actor]",
         ],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )

@@ -1,0 +1,115 @@
+"""The whole system trains: demos and episodes flow into the replay, the learner updates,
+actors pick up newer weights, and a learner killed mid-run resumes from its checkpoint.
+
+Every role is a real process started by `c2farm launch`; the networks are shrunk so a
+2-core CI machine does a few updates a second.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import httpx
+import psutil
+
+from conftest import REPO, get_free_port, kill_all, survivors, wait_for
+from learner.checkpoint import complete_checkpoints
+
+RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
+SMALL_RUN = [
+    "--task", "reach_target", "--actors", "1",
+    "--set", "sim.image_size=64",
+    "--set", "demos.episodes=2",
+    "--set", "replay.min_size_to_sample=8",
+    "--set", "learner.batch_size=2",
+    "--set", "learner.publish_every=2",
+    "--set", "learner.checkpoint_every=3",
+    "--set", "qattention.kernels=8",
+    "--set", "qattention.head_width=16",
+    "--set", "actor.eval_episodes=1",
+    "--set", "actor.eval_every_versions=3",
+    "--set", "actor.record_eval=false",
+    "--set", "launch.restart_backoff_s=1",
+    "--set", "launch.progress_every_s=5",
+]
+
+
+def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path: Path):
+    ports = {name: get_free_port() for name in ("router", "dashboard", "zmq")}
+    launcher = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "launch", "--run-id", "e2e", "--runs-dir", str(tmp_path / "runs"),
+         "--router-port", str(ports["router"]), "--dashboard-port", str(ports["dashboard"]),
+         "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{ports['zmq']}",
+         "--set", f"demos.directory={tmp_path / 'demos'}", *SMALL_RUN],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(l.rstrip() for l in launcher.stdout), daemon=True).start()
+    children: dict[int, psutil.Process] = {}
+
+    def remember_children() -> None:
+        try:
+            for child in psutil.Process(launcher.pid).children(recursive=True):
+                children.setdefault(child.pid, child)
+        except psutil.NoSuchProcess:
+            pass
+
+    run_dir = tmp_path / "runs" / "e2e"
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{ports['dashboard']}", timeout=5) as http:
+
+            def status() -> dict:
+                try:
+                    snap = http.get("/api/status").json()
+                except (httpx.HTTPError, ValueError):
+                    return {}
+                remember_children()
+                return {"summary": snap["summary"], **{r["instance"]: r for r in snap["roles"]}}
+
+            # Demos and live episodes reach the replay, the learner updates, the actor swaps weights.
+            first = wait_for(
+                lambda: (s := status()) and (s["summary"]["updates"] or 0) >= 6
+                and s.get("actor-0", {}).get("counters", {}).get("weights_version", 0) >= 2 and s,
+                300, "learner updates and a newer weights version at the actor",
+            )
+            assert first["summary"]["env_steps"] > 0 and first["summary"]["replay_size"] >= 8
+            assert first["demos"]["counters"]["demo_episodes"] > 0
+            assert first["actor-0"]["counters"]["acked"] > 0
+            assert "actor-0" in first["summary"]["policy_lag"]
+
+            # Kill the learner outright; the launcher restarts it and it resumes its step.
+            victim = first["learner"]["pid"]
+            os.kill(victim, signal.SIGKILL)
+            saved = complete_checkpoints(run_dir / "checkpoints" / "learner")
+            assert saved, "the learner wrote no checkpoint before the kill"
+            saved_step = int(saved[-1].name.removeprefix("step-"))
+            back = wait_for(
+                lambda: (s := status()) and s["learner"]["alive"] and s["learner"]["pid"] not in (None, victim)
+                and s["learner"]["counters"].get("updates") is not None and s,
+                180, "the learner to be restarted",
+            )
+            assert back["learner"]["counters"]["updates"] >= saved_step
+            resumed = wait_for(lambda: [int(m[1]) for l in lines if (m := RESUMED.search(l))],
+                               30, "the restarted learner to say it resumed")
+            assert resumed[-1] >= saved_step
+            version_before = back["learner"]["counters"]["weights_version"]
+            wait_for(lambda: (s := status()) and s["learner"]["counters"]["updates"] > back["learner"]["counters"]["updates"],
+                     180, "the resumed learner to keep updating")
+            assert status()["learner"]["counters"]["weights_version"] >= version_before  # versions never go back
+
+        launcher.send_signal(signal.SIGTERM)
+        assert launcher.wait(timeout=30) == 0
+        assert not survivors(list(children.values())), f"left behind: {survivors(list(children.values()))}"
+    finally:
+        if launcher.poll() is None:
+            os.killpg(launcher.pid, signal.SIGKILL)
+        kill_all([], list(children.values()))
+
+    assert (run_dir / "metrics" / "learner.csv").exists()
+    assert any("progress: updates" in l for l in lines)
