@@ -18,7 +18,6 @@ import platform
 import statistics
 import subprocess
 import sys
-import textwrap
 import time
 from importlib import metadata
 from pathlib import Path

@@ -115,7 +115,7 @@ def main():
         prec = "bf16" if cfg.bf16 else "fp32"
         print(f"| {name} | {cfg.padding} | {prec} | {params:,} | {act * 1000:.0f} | " + " | ".join(cells) + " |",
               flush=True)
-        del agent
+
 
     print("\n| voxelisation 16^3 | 1 camera | 4 cameras |\n|---|---|---|")
     cams = ("front", "left_shoulder", "right_shoulder", "wrist")

@@ -14,14 +14,12 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import os
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -33,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from protocol import keys  # noqa: E402
 from protocol.fabric import FabricConfig, open_session  # noqa: E402
-from protocol.messages import EpisodeAck, Status, decode, encode  # noqa: E402
+from protocol.messages import Status, decode, encode  # noqa: E402
 from protocol.observation import CAMERA_NAMES  # noqa: E402
 from replay_server.checkpoint import load_checkpoint, write_checkpoint  # noqa: E402
 from replay_server.client import ReplayClient  # noqa: E402

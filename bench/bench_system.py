@@ -23,7 +23,6 @@ import subprocess
 import sys
 import time
 
-import numpy as np
 
 
 def time_decisions(task: str, decisions: int) -> None:

@@ -23,7 +23,6 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import IO, Optional
 
 from deploy.cli import PARENT_ENV, tcp_endpoints, wait_for_router

@@ -79,6 +79,17 @@ def decode_frame(
     return kind, fields, arrays
 
 
+def peek_fields(data: bytes) -> dict[str, Any]:
+    """The scalar fields of a frame without checking its version or parsing its arrays.
+
+    For naming the sender of a message that is being rejected (so it can be told why);
+    raises :class:`ProtocolError` when even the fields cannot be read.
+    """
+    if len(data) < _FRAME.size + 8 or bytes(data[:4]) != MAGIC:
+        raise ProtocolError("frame", "not a c2farm frame")
+    return _read_fields(memoryview(data)[_FRAME.size :])
+
+
 def _read_fields(body: memoryview) -> dict[str, Any]:
     """Read the JSON scalar fields from the safetensors header without touching the buffers."""
     (header_len,) = struct.unpack_from("<Q", body)

@@ -86,7 +86,7 @@ class C2FARM:
 
     def update(self, batch: TransitionBatch) -> tuple[dict[str, float], np.ndarray]:
         """One gradient step per depth on the same batch; returns metrics and PER priorities [B]."""
-        cfg, b = self.config, batch.size
+        cfg = self.config
         self.nets.train()
         idx, coords, bounds, rot_grip = self.labels(batch)
         cams, crop, v = cfg.cameras, cfg.image_crop, cfg.voxel_size

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from typing import Optional
+
 
 import numpy as np
 import zmq

@@ -29,7 +29,7 @@ import zenoh
 import zmq
 
 from protocol import keys
-from protocol.codec import ProtocolError, _read_fields, decode_frame
+from protocol.codec import ProtocolError, peek_fields
 from protocol.episode import Episode
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
@@ -264,7 +264,7 @@ class ReplayService:
         self.info["last_rejection"] = reason[:200]
         identity = None
         try:
-            fields = _read_fields(memoryview(data)[8:])
+            fields = peek_fields(data)
             actor, eid = fields.get("actor_id"), fields.get("episode_id")
             if isinstance(actor, str) and isinstance(eid, int) and not isinstance(eid, bool) and eid >= 0:
                 keys.check_id(actor, "actor")

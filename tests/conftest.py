@@ -139,6 +139,26 @@ def stop_process_tree(proc: subprocess.Popen, timeout: float = 15.0) -> list[psu
     return descendants
 
 
+class Descendants:
+    """Every process ever seen below ``pid`` (call :meth:`scan` while they run), so a test can
+    check afterwards that none survived, restarted ones included."""
+
+    def __init__(self, pid: int):
+        self.pid = pid
+        self.seen: dict[int, psutil.Process] = {}
+
+    def scan(self) -> None:
+        try:
+            for child in psutil.Process(self.pid).children(recursive=True):
+                self.seen.setdefault(child.pid, child)
+        except psutil.NoSuchProcess:
+            pass
+
+    @property
+    def processes(self) -> list[psutil.Process]:
+        return list(self.seen.values())
+
+
 def kill_all(pids: list[int], processes: list[psutil.Process]) -> None:
     """Last-resort cleanup: SIGKILL the given processes (only those still running)."""
     for pid in pids:

@@ -10,10 +10,9 @@ import threading
 from pathlib import Path
 
 import httpx
-import psutil
 import pytest
 
-from conftest import REPO, get_free_port, kill_all, stop_process_tree, survivors, wait_for
+from conftest import REPO, Descendants, get_free_port, kill_all, stop_process_tree, survivors, wait_for
 from dashboard.registry import FabricFeed, RoleTable
 from deploy.cli import build_parser
 from protocol.fabric import FabricConfig, open_session
@@ -66,14 +65,7 @@ def test_launch_runs_every_role_restarts_a_killed_actor_and_stops_clean(tmp_path
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )
     output = Output(launcher)
-    seen: dict[int, psutil.Process] = {}
-
-    def remember_children() -> None:
-        try:
-            for child in psutil.Process(launcher.pid).children(recursive=True):
-                seen.setdefault(child.pid, child)
-        except psutil.NoSuchProcess:
-            pass
+    children = Descendants(launcher.pid)
 
     try:
         with httpx.Client(base_url=f"http://127.0.0.1:{dashboard_port}", timeout=5) as http:
@@ -90,10 +82,10 @@ def test_launch_runs_every_role_restarts_a_killed_actor_and_stops_clean(tmp_path
                 90, "every role to report alive on /api/status",
             )
             assert http.get("/healthz").json()["ok"] is True
-            remember_children()
+            children.scan()
 
             victim = everyone["actor-1"]["pid"]
-            assert victim in seen  # it is the launcher's child, not some other process
+            assert victim in children.seen  # it is the launcher's child, not some other process
             os.kill(victim, signal.SIGKILL)
             gone = wait_for(lambda: (r := roles()) and not r["actor-1"]["alive"] and r["actor-1"], 15,
                             "the killed actor to show as gone")
@@ -104,15 +96,15 @@ def test_launch_runs_every_role_restarts_a_killed_actor_and_stops_clean(tmp_path
                 60, "the actor to be restarted",
             )
             assert back["starts"] >= 2
-            remember_children()
+            children.scan()
 
         launcher.send_signal(signal.SIGTERM)
         assert launcher.wait(timeout=30) == 0
-        assert not survivors(list(seen.values())), f"left behind: {survivors(list(seen.values()))}"
+        assert not survivors(children.processes), f"left behind: {survivors(children.processes)}"
     finally:
         if launcher.poll() is None:
             os.killpg(launcher.pid, signal.SIGKILL)
-        kill_all([], list(seen.values()))
+        kill_all([], children.processes)
 
     text = output.text
     assert f"dashboard: http://127.0.0.1:{dashboard_port}/" in text

@@ -16,9 +16,8 @@ import threading
 from pathlib import Path
 
 import httpx
-import psutil
 
-from conftest import REPO, get_free_port, kill_all, survivors, wait_for
+from conftest import REPO, Descendants, get_free_port, kill_all, survivors, wait_for
 from learner.checkpoint import complete_checkpoints
 
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
@@ -51,14 +50,7 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
     )
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(l.rstrip() for l in launcher.stdout), daemon=True).start()
-    children: dict[int, psutil.Process] = {}
-
-    def remember_children() -> None:
-        try:
-            for child in psutil.Process(launcher.pid).children(recursive=True):
-                children.setdefault(child.pid, child)
-        except psutil.NoSuchProcess:
-            pass
+    children = Descendants(launcher.pid)
 
     run_dir = tmp_path / "runs" / "e2e"
     try:
@@ -69,7 +61,7 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
                     snap = http.get("/api/status").json()
                 except (httpx.HTTPError, ValueError):
                     return {}
-                remember_children()
+                children.scan()
                 return {"summary": snap["summary"], **{r["instance"]: r for r in snap["roles"]}}
 
             # Demos and live episodes reach the replay, the learner updates, the actor swaps weights.
@@ -105,11 +97,11 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
 
         launcher.send_signal(signal.SIGTERM)
         assert launcher.wait(timeout=30) == 0
-        assert not survivors(list(children.values())), f"left behind: {survivors(list(children.values()))}"
+        assert not survivors(children.processes), f"left behind: {survivors(children.processes)}"
     finally:
         if launcher.poll() is None:
             os.killpg(launcher.pid, signal.SIGKILL)
-        kill_all([], list(children.values()))
+        kill_all([], children.processes)
 
     assert (run_dir / "metrics" / "learner.csv").exists()
     assert any("progress: updates" in l for l in lines)

@@ -2,8 +2,12 @@
 
 PyBullet's ``calculateInverseKinematics`` gives a starting guess but stalls at a few mm / 2 degrees
 near the table, so the answer is refined with our own damped-least-squares iterations on the full
-6-D error (with a null-space pull towards the rest pose, away from the joint limits), verified by
-forward kinematics, and restarted from seeded random configurations when it misses.
+6-D error, verified by forward kinematics, and restarted from HOME and seeded random configurations
+when it misses. The 7th degree of freedom is settled by a null-space pull: towards the current
+configuration on the first try (the nearest solution, so a small Cartesian move is a small joint
+move), towards HOME (away from the joint limits) on the restarts. Pulling towards HOME from the
+current configuration drags the arm along its self-motion manifold and can land on a far-away
+elbow/wrist configuration whose joint-space path sweeps the hand through nearby objects.
 """
 
 from __future__ import annotations
@@ -74,14 +78,15 @@ class IKSolver:
                   for i in range(n)]
         ll, ul = list(LOWER) + [0, 0], list(UPPER) + [0.04, 0.04]
         ranges = [u - l for l, u in zip(ll, ul)]
-        for seed in seeds:
+        for i, seed in enumerate(seeds):
+            rest = seeds[0] if i == 0 else np.asarray(HOME)  # nearest solution first, see the module docstring
             set_arm(self.world.client, self.world.robot, seed)
             guess = p.calculateInverseKinematics(
                 self.world.robot, GRASP_LINK, list(position), list(quaternion), lowerLimits=ll, upperLimits=ul,
                 jointRanges=ranges, restPoses=list(seed) + [0.04, 0.04], maxNumIterations=100,
                 residualThreshold=1e-5, physicsClientId=self.world.client)
             for start in (np.clip(np.array(guess[:7]), LOWER, UPPER), seed):  # PyBullet's guess, else the seed itself
-                q, perr, aerr = self._refine(start, position, quaternion, np.asarray(HOME))
+                q, perr, aerr = self._refine(start, position, quaternion, rest)
                 if perr < self.position_tol and aerr < self.angle_tol:
                     if accept is None or accept(q):
                         return q
