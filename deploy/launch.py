@@ -140,7 +140,9 @@ class Launcher:
         """Start everything, supervise until a signal, stop everything; return an exit code."""
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         code = 0
-        (self.run_dir / "launched_at").write_text(f"{time.time():.3f}\n")
+        first_launch = self.run_dir / "launched_at"  # a resumed run keeps its first start time
+        if not first_launch.exists():
+            first_launch.write_text(f"{time.time():.3f}\n")
         try:
             code = self._start_all()
             if code == 0:
