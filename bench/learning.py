@@ -53,10 +53,13 @@ def plot(run_dir: Path) -> Path | None:
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
     for ax, x, label in ((a, "env_steps", "environment steps (decisions)"), (b, "minutes", "wall-clock minutes")):
-        ax.plot([c[x] for c in curve], [100 * c["success_rate"] for c in curve], marker="o")
+        # A weights version published before the learner saw a batch carries no env-step count.
+        points = [c for c in curve if x != "env_steps" or c["env_steps"] or not c["learner_step"]]
+        ax.plot([c[x] for c in points], [100 * c["success_rate"] for c in points], marker="o")
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
-    a.set_ylabel(f"greedy eval success (%), {curve[0]['episodes']} episodes")
+    counts = sorted({c["episodes"] for c in curve})
+    a.set_ylabel(f"greedy eval success (%), {'/'.join(map(str, counts))} episodes per point")
     a.set_ylim(-2, 102)
     fig.suptitle(run_dir.name)
     fig.tight_layout()

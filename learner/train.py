@@ -53,6 +53,7 @@ class Learner:
         self.step = 0  #: update() calls done
         self.version = 0  #: last weights version published
         self.samples = 0  #: transitions consumed
+        self.env_steps = 0  #: transitions the replay had received, as of the last batch (learning curves)
         self.checkpoint_dir = ctx.run_dir / "checkpoints" / "learner"
         self._last_metrics: dict[str, float] = {}
         self._rates = {"updates_per_s": 0.0, "samples_per_s": 0.0}
@@ -65,6 +66,7 @@ class Learner:
             "step": self.step,
             "version": self.version,
             "samples": self.samples,
+            "env_steps": self.env_steps,
             "torch_rng": torch.get_rng_state(),
             "numpy_rng": json.dumps(self.rng.bit_generator.state),
             "python_rng": json.dumps(random.getstate()),
@@ -78,6 +80,7 @@ class Learner:
             return False
         self.agent.load_state_dict(state["agent"])
         self.step, self.version, self.samples = state["step"], state["version"], state["samples"]
+        self.env_steps = state.get("env_steps", 0)
         torch.set_rng_state(state["torch_rng"])
         self.rng.bit_generator.state = json.loads(state["numpy_rng"])
         python_state = json.loads(state["python_rng"])
@@ -122,7 +125,7 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
                              ctx.run_dir / "tensorboard" if config.tensorboard else None)
     # Actors may be waiting: publish what we have (fresh or resumed) before the first update.
     learner.version += 1
-    publisher.publish(learner.agent.weights(), learner.version, learner.step)
+    publisher.publish(learner.agent.weights(), learner.version, learner.step, learner.env_steps)
     window_start, window_updates, window_samples = time.monotonic(), 0, 0
     try:
         while not ctx.stop.is_set():
@@ -138,10 +141,10 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
             learner._last_metrics = metrics
             window_updates += 1
             window_samples += int(batch.arrays["indices"].shape[0])
+            learner.env_steps = int(batch.info.get("transitions_inserted", learner.env_steps))
             if learner.step % config.publish_every == 0:
                 learner.version += 1
-                env_steps = int(batch.info.get("transitions_inserted", 0))
-                publisher.publish(learner.agent.weights(), learner.version, learner.step, env_steps)
+                publisher.publish(learner.agent.weights(), learner.version, learner.step, learner.env_steps)
             if learner.step % config.log_every == 0:
                 elapsed = time.monotonic() - window_start
                 learner._rates = {"updates_per_s": window_updates / elapsed, "samples_per_s": window_samples / elapsed}
