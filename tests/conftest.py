@@ -159,6 +159,20 @@ class Descendants:
         return list(self.seen.values())
 
 
+def stop_launcher(launcher: subprocess.Popen, children: Descendants) -> None:
+    """SIGTERM a `c2farm launch` and check it stops cleanly, leaving none of its roles behind."""
+    launcher.send_signal(signal.SIGTERM)
+    assert launcher.wait(timeout=30) == 0
+    assert not survivors(children.processes), f"left behind: {survivors(children.processes)}"
+
+
+def kill_launcher(launcher: subprocess.Popen, children: Descendants) -> None:
+    """Last-resort cleanup of a `c2farm launch` (its own process group) and every role it started."""
+    if launcher.poll() is None:
+        os.killpg(launcher.pid, signal.SIGKILL)
+    kill_all([], children.processes)
+
+
 def kill_all(pids: list[int], processes: list[psutil.Process]) -> None:
     """Last-resort cleanup: SIGKILL the given processes (only those still running)."""
     for pid in pids:

@@ -12,7 +12,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from conftest import REPO, Descendants, get_free_port, kill_all, stop_process_tree, survivors, wait_for
+from conftest import REPO, Descendants, get_free_port, kill_launcher, stop_launcher, stop_process_tree, wait_for
 from dashboard.registry import FabricFeed, RoleTable
 from deploy.cli import build_parser
 from protocol.fabric import FabricConfig, open_session
@@ -98,13 +98,9 @@ def test_launch_runs_every_role_restarts_a_killed_actor_and_stops_clean(tmp_path
             assert back["starts"] >= 2
             children.scan()
 
-        launcher.send_signal(signal.SIGTERM)
-        assert launcher.wait(timeout=30) == 0
-        assert not survivors(children.processes), f"left behind: {survivors(children.processes)}"
+        stop_launcher(launcher, children)
     finally:
-        if launcher.poll() is None:
-            os.killpg(launcher.pid, signal.SIGKILL)
-        kill_all([], children.processes)
+        kill_launcher(launcher, children)
 
     text = output.text
     assert f"dashboard: http://127.0.0.1:{dashboard_port}/" in text

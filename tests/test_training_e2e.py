@@ -17,7 +17,7 @@ from pathlib import Path
 
 import httpx
 
-from conftest import REPO, Descendants, get_free_port, kill_all, survivors, wait_for
+from conftest import REPO, Descendants, get_free_port, kill_launcher, stop_launcher, wait_for
 from learner.checkpoint import complete_checkpoints
 
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
@@ -95,13 +95,9 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
                      180, "the resumed learner to keep updating")
             assert status()["learner"]["counters"]["weights_version"] >= version_before  # versions never go back
 
-        launcher.send_signal(signal.SIGTERM)
-        assert launcher.wait(timeout=30) == 0
-        assert not survivors(children.processes), f"left behind: {survivors(children.processes)}"
+        stop_launcher(launcher, children)
     finally:
-        if launcher.poll() is None:
-            os.killpg(launcher.pid, signal.SIGKILL)
-        kill_all([], children.processes)
+        kill_launcher(launcher, children)
 
     assert (run_dir / "metrics" / "learner.csv").exists()
     assert any("progress: updates" in l for l in lines)
