@@ -24,7 +24,6 @@ import sys
 import time
 
 
-
 def time_decisions(task: str, decisions: int) -> None:
     import torch
 
@@ -34,35 +33,40 @@ def time_decisions(task: str, decisions: int) -> None:
     from qattention.config import cpu_small, paper
 
     torch.set_num_threads(1)
-    print(f"one decision on {task} (median of {decisions}), 1 torch thread")
-    print("| cameras | render ms | network | voxelise + cascade ms | control ms (IK+plan+Ruckig+physics) | total ms |")
-    print("|---|---|---|---|---|---|")
+    print(f"one decision on {task} (median ms of {decisions} poses), 1 torch thread")
+    print("| cameras | network | render | voxelise + cascade | IK | plan | Ruckig | physics + gripper | total |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for cameras in (("front",), ("front", "left_shoulder", "right_shoulder", "wrist")):
         env = PandaEnv(SimConfig(task=task, cameras=cameras))
         for name, preset in (("cpu-small", cpu_small()), ("paper", paper())):
             config = preset.replace(scene_bounds=tuple(env.scene_bounds), cameras=cameras,
                                     episode_length=env.episode_length)
             agent = C2FARM(config, device="cpu")
-            render, act, control = [], [], []
+            parts: dict[str, list[float]] = {k: [] for k in ("render", "act", "ik", "plan", "trajectory", "physics")}
             seed = 0
-            while len(control) < decisions:
+            while len(parts["render"]) < decisions:
                 env.reset(seed=seed)
                 seed += 1
-                for waypoint in env.demo_waypoints():
+                for waypoint in env.demo_waypoints():  # scripted poses: every one is reachable
                     t0 = time.perf_counter()
                     obs = env.observe()
                     t1 = time.perf_counter()
                     agent.act(ObservationBatch.from_observations([obs], cameras, "cpu"))
                     t2 = time.perf_counter()
                     result = env.step(waypoint.action(), linear=waypoint.linear)
-                    t3 = time.perf_counter()
-                    render.append(t1 - t0)
-                    act.append(t2 - t1)
-                    control.append((t3 - t2) - (t1 - t0))  # step() renders the next observation once
-                    if result.terminal:
+                    if result.unreachable:
                         break
-            r, a, c = (1e3 * statistics.median(x) for x in (render, act, control))
-            print(f"| {len(cameras)} | {r:.0f} | {name} | {a:.0f} | {c:.0f} | {r + a + c:.0f} |")
+                    timings = result.info["timings"]
+                    parts["render"].append(t1 - t0)
+                    parts["act"].append(t2 - t1)
+                    for k in ("ik", "plan", "trajectory"):
+                        parts[k].append(timings.get(k, 0.0))
+                    parts["physics"].append(timings.get("execute", 0.0) + timings.get("gripper", 0.0))
+                    if result.terminal or len(parts["render"]) >= decisions:
+                        break
+            ms = {k: 1e3 * statistics.median(v) for k, v in parts.items()}
+            cells = " | ".join(f"{ms[k]:.1f}" for k in parts)
+            print(f"| {len(cameras)} | {name} | {cells} | {sum(ms.values()):.0f} |", flush=True)
         env.close()
 
 
