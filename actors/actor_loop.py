@@ -42,23 +42,31 @@ class Rollout:
     success: bool = False
     timeout: bool = False
     reason: str = ""
+    reach_checks: int = 0  #: reachability tests run while acting (reachable_top_k)
+    reach_replaced: int = 0  #: decisions whose first choice was unreachable and a reachable candidate took over
 
     @property
     def total_reward(self) -> float:
         return float(sum(self.rewards))
 
 
-def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None) -> Rollout | None:
+def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, top_k: int = 0) -> Rollout | None:
     """Play one episode: observe, choose a next-best pose, let the control agent execute it.
 
+    ``top_k`` > 1 lets an unreachable choice give way to the best reachable one of the top-K.
     Returns None when ``stop`` is set mid-episode (a cut-short episode is not data).
     """
     obs = env.reset(seed=seed)
     result = Rollout(observations=[obs])
+    reachable = env.reachable if top_k > 1 else None
     for _ in range(env.episode_length):
         if stop is not None and stop.is_set():
             return None
-        act = agent.act(ObservationBatch.from_observations([obs], cameras, agent.device), explore=explore)
+        act = agent.act(ObservationBatch.from_observations([obs], cameras, agent.device), explore=explore,
+                        reachable=reachable, top_k=top_k)
+        if act.reach_checks is not None:
+            result.reach_checks += int(act.reach_checks[0])
+            result.reach_replaced += int(act.reach_replaced[0])
         action = np.asarray(act.action[0], dtype=np.float32)
         # The labels actually chosen (per-depth voxels, cube centres, bins) travel with the
         # observation: re-encoding the continuous pose would not always give them back.
@@ -167,14 +175,15 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
     follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
     policy = ActingPolicy(qconfig, follower)
     outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s, config.outbox_wait_s)
-    stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0}
+    stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0, "reach_checks": 0, "reach_replaced": 0}
     # Episode ids must grow across restarts of this actor, or the replay would drop new episodes
     # as duplicates: start from the clock in milliseconds (an episode takes far longer than 1 ms).
     first_id = int(time.time() * 1000)
 
     def counters() -> dict[str, float]:
         return {**stats, **outbox.counters, "outbox_pending": outbox.pending, "weights_version": policy.version,
-                "weights_latency_s": follower.latency_s, "success_rate": stats["successes"] / max(1, stats["episodes"])}
+                "weights_latency_s": follower.latency_s, "success_rate": stats["successes"] / max(1, stats["episodes"]),
+                "unreachable_rate": stats["unreachable"] / max(1, stats["episodes"])}
 
     heartbeat = Heartbeat(session, ctx.run_id, "actor", ctx.instance, counters=counters,
                           info=lambda: {"task": sim_config.task})
@@ -185,7 +194,8 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             policy.refresh()
             episode_id = first_id + n
             seed = episode_seed(ctx.seed, ctx.instance, episode_id)
-            r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop)
+            r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop,
+                        top_k=config.reachable_top_k)
             if r is None:
                 break
             outbox.send(to_episode(r, ctx.instance, episode_id, sim_config.task, seed, policy.version))
@@ -195,6 +205,8 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             stats["env_steps"] += len(r.actions)
             stats["successes"] += int(r.success)
             stats["unreachable"] += int(r.reason == "unreachable")
+            stats["reach_checks"] += r.reach_checks
+            stats["reach_replaced"] += r.reach_replaced
         outbox.flush(timeout_s=2.0)  # inside the launcher's grace period; what is still unacknowledged after this is lost
     finally:
         heartbeat.close()

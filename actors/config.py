@@ -10,13 +10,21 @@ class ActorConfig:
     """How an actor acts, delivers episodes and (as an evaluator) measures success."""
 
     epsilon: float = 0.1  #: exploration probability per depth / rotation axis / gripper on training actors
+    reachable_top_k: int = 0  #: an unreachable choice gives way to the best reachable (IK test) of the top-K; 0 = off (reference)
     torch_threads: int = 1  #: intra-op threads for acting (one core per actor)
     outbox_size: int = 16  #: unacknowledged episodes kept for resending; a full outbox waits, then drops the oldest
     resend_after_s: float = 10.0  #: resend an episode not acknowledged within this time
     outbox_wait_s: float = 30.0  #: longest wait for room in a full outbox before dropping the oldest
     weights_wait_s: float = 60.0  #: at start, wait this long for the first weights (then act with random init)
     max_episodes: int = 0  #: stop after this many episodes; 0 = until stopped
-    eval_episodes: int = 10  #: evaluator: seeded episodes per weights version
+    eval_episodes: int = 20  #: evaluator: seeded episodes per weights version
+    eval_min_episodes: int = 10  #: evaluator: stop a version's evaluation after this many if none succeeded (0 % needs fewer)
     eval_seed: int = 1_000_000  #: evaluator: first seed of the fixed evaluation set (disjoint from training seeds)
     eval_every_versions: int = 5  #: evaluator: evaluate a version only if this many versions passed since the last
     record_eval: bool = True  #: evaluator: write each evaluation episode as MCAP under runs/<id>/eval/
+
+    def __post_init__(self) -> None:
+        if self.eval_episodes < 1 or self.eval_min_episodes < 1:
+            raise ValueError("eval_episodes and eval_min_episodes must be >= 1")
+        if self.reachable_top_k < 0:
+            raise ValueError("reachable_top_k must be >= 0 (0 = off)")

@@ -25,7 +25,8 @@ from qattention.digest import network_digest
 
 log = logging.getLogger("eval")
 
-EVAL_FIELDS = ["time", "weights_version", "learner_step", "env_steps", "episodes", "success_rate", "mean_return"]
+EVAL_FIELDS = ["time", "weights_version", "learner_step", "env_steps", "episodes", "success_rate", "mean_return",
+               "unreachable_rate"]
 
 
 @dataclass
@@ -36,29 +37,39 @@ class EvalResult:
     episodes: int
     success_rate: float
     mean_return: float
+    unreachable_rate: float  #: episodes that ended on a pose the arm could not reach
 
 
 def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras,
-             record_dir: Path | None = None, stop=None) -> tuple[float, float, int]:
-    """Greedy rollouts on seeds ``eval_seed .. eval_seed + eval_episodes - 1``: (success, return, n)."""
+             record_dir: Path | None = None, stop=None) -> tuple[float, float, float, int] | None:
+    """Greedy rollouts on seeds ``eval_seed, eval_seed + 1, ...``: (success, return, unreachable, n).
+
+    Runs ``eval_episodes``, or only ``eval_min_episodes`` when none of those succeeded (a 0 %
+    point needs fewer episodes to be sure of). None when stopped part-way: a partial result
+    would bias the curve.
+    """
     if record_dir is not None:
         record_dir.mkdir(parents=True, exist_ok=True)
-    successes, returns, done = 0, 0.0, 0
+    successes, returns, unreachable, done = 0, 0.0, 0, 0
     for i in range(config.eval_episodes):
+        if done >= config.eval_min_episodes and not successes:
+            break
         if stop is not None and stop.is_set():
-            break
-        r = rollout(env, policy.agent, cameras, config.eval_seed + i, explore=False, stop=stop)
+            return None
+        r = rollout(env, policy.agent, cameras, config.eval_seed + i, explore=False, stop=stop,
+                    top_k=config.reachable_top_k)
         if r is None:
-            break
+            return None
         successes += int(r.success)
         returns += r.total_reward
+        unreachable += int(r.reason == "unreachable")
         done += 1
         if record_dir is not None:
             from actors.demos.mcap_io import write_episode_mcap
 
             write_episode_mcap(record_dir / f"v{policy.version:06d}-seed{config.eval_seed + i}.mcap",
                                r.observations, task=env.task_name, seed=config.eval_seed + i, success=r.success)
-    return successes / max(1, done), returns / max(1, done), done
+    return successes / done, returns / done, unreachable / done, done
 
 
 def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleContext) -> int:
@@ -93,12 +104,13 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             policy.agent.load_weights(tensors_from_update(update))
             follower.version = update.version
             record = ctx.run_dir / "eval" if config.record_eval else None
-            success, mean_return, n = evaluate(env, policy, config, qconfig.cameras,
-                                               record, ctx.stop)
-            if n < config.eval_episodes:
-                break  # stopped mid-evaluation: a partial result would bias the curve
+            result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop)
+            if result is None:
+                break  # stopped mid-evaluation
+            success, mean_return, unreachable, n = result
             evaluated_version = update.version
-            latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return)
+            latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return,
+                                unreachable)
             _append_csv(csv_path, latest)
             log.info("weights v%d (step %d, %d env steps): success %.0f%% over %d episodes",
                      update.version, update.learner_step, update.env_steps, 100 * success, n)

@@ -19,8 +19,10 @@ from .batch import ObservationBatch, TransitionBatch
 from .cascade import ActResult, descend
 from .config import QAttentionConfig
 from .crop import gather_points
+from .precision import native_bf16, use_bf16
 from .loss import bootstrap_value, depth_loss, next_bounds, priorities, td_target
 from .q_attention import build_networks
+from .reachability import ReachabilityTest
 from .voxelise import child_bounds, voxelise
 
 
@@ -28,8 +30,9 @@ class C2FARM:
     def __init__(self, config: QAttentionConfig, device: str | torch.device = "cpu", seed: int = 0):
         self.config = config
         self.device = torch.device(device)
-        if config.bf16 and self.device.type == "cpu" and "AVX512" not in torch.backends.cpu.get_cpu_capability():
-            warnings.warn("bf16 autocast on a CPU without AVX-512 is emulated: 3D convs run 30-600x slower (README.md)")
+        self.bf16 = use_bf16(config.bf16, self.device)  #: resolved for this device ("auto" -> native or not)
+        if self.bf16 and not native_bf16(self.device):
+            warnings.warn("bf16 autocast without native bf16 is emulated: 3D convs run 30-600x slower (BENCHMARKS.md)")
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
             nets = build_networks(config)
@@ -44,7 +47,7 @@ class C2FARM:
 
     # ------------------------------------------------------------------ acting
     def _autocast(self):
-        if not self.config.bf16:
+        if not self.bf16:
             return contextlib.nullcontext()
         return torch.autocast(self.device.type, dtype=torch.bfloat16)
 
@@ -56,10 +59,15 @@ class C2FARM:
         return q
 
     @torch.no_grad()
-    def act(self, obs: ObservationBatch, explore: bool = False) -> ActResult:
-        """Next-best pose for every observation of the batch (greedy unless ``explore`` and epsilon > 0)."""
+    def act(self, obs: ObservationBatch, explore: bool = False, reachable: ReachabilityTest | None = None,
+            top_k: int = 0) -> ActResult:
+        """Next-best pose for every observation of the batch (greedy unless ``explore`` and epsilon > 0).
+
+        With ``reachable`` and ``top_k`` > 1, an unreachable choice gives way to the best reachable
+        one of the top-K candidates (reachability.py).
+        """
         self.nets.eval()
-        return descend(obs, [self._q(n) for n in self.nets], self.config, explore, self.generator)
+        return descend(obs, [self._q(n) for n in self.nets], self.config, explore, self.generator, reachable, top_k)
 
     # ---------------------------------------------------------------- learning
     def labels(self, batch: TransitionBatch):

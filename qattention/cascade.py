@@ -3,7 +3,9 @@
 ``descend`` takes one Q-function per depth, ``(grid, proprio) -> (q_trans [B,V,V,V],
 q_rot_grip [B, 3*bins+2] | None)``, so the same loop serves the networks and any analytic Q.
 The final translation is the centre of the last chosen voxel; rotation/gripper come from the
-last depth's head (greedy, or explored, see exploration.py).
+last depth's head (greedy, or explored, see exploration.py). With a reachability test and
+``top_k`` > 1, an unreachable choice is replaced by the best reachable candidate of the last
+depth (reachability.py).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from .action_codec import bins_to_rotation
 from .batch import ObservationBatch
 from .crop import gather_points
 from .exploration import explore_rotation, explore_voxel
+from .reachability import ReachabilityTest, ranked_candidates
 from .voxelise import child_bounds, unflatten_index, voxel_centre, voxelise
 
 QFunction = Callable[[torch.Tensor, torch.Tensor], tuple]
@@ -31,6 +34,8 @@ class ActResult:
     rot_grip_indices: np.ndarray  #: int64 [B, 4] Euler bins + gripper index
     bounds: np.ndarray  #: float32 [B, D, 6] the box each depth voxelised
     q_values: np.ndarray  #: float32 [B, D] Q of the chosen voxel per depth
+    reach_checks: np.ndarray | None = None  #: int64 [B] reachability tests run (None: acting without them)
+    reach_replaced: np.ndarray | None = None  #: bool [B] the first choice was unreachable and a candidate replaced it
 
     def replay_elements(self) -> dict[str, np.ndarray]:
         """The named arrays to store with the observation (keys of ``TransitionBatch``)."""
@@ -53,6 +58,8 @@ def descend(
     config,
     explore: bool = False,
     generator: torch.Generator | None = None,
+    reachable: ReachabilityTest | None = None,
+    top_k: int = 0,
 ) -> ActResult:
     b, v = obs.size, config.voxel_size
     explore = explore and config.epsilon > 0
@@ -80,6 +87,17 @@ def descend(
         rot, grip = explore_rotation(rot, grip, config, generator)
     quat = bins_to_rotation(rot, config.rotation_resolution)
     action = torch.cat([centre.float(), quat, grip[:, None].float()], 1)
+    checks = replaced = None
+    if reachable is not None and top_k > 1:
+        checks, replaced = np.zeros(b, np.int64), np.zeros(b, bool)
+        for i in range(b):
+            checks[i], choice = _reachable_choice(action[i], q_trans[i], q_rot[i], bounds[i], config, reachable, top_k)
+            if choice is not None:
+                replaced[i] = True
+                idx[i], rot[i] = choice
+                centre[i] = voxel_centre(idx[i], bounds[i], v)
+                qs[-1][i] = q_trans[i, idx[i, 0], idx[i, 1], idx[i, 2]]
+                action[i, :7] = torch.cat([centre[i].float(), bins_to_rotation(rot[i], config.rotation_resolution)])
     np_ = lambda t: t.detach().cpu().numpy()  # noqa: E731
     return ActResult(
         action=np_(action).astype(np.float32),
@@ -88,4 +106,26 @@ def descend(
         rot_grip_indices=np_(torch.cat([rot, grip[:, None]], 1)).astype(np.int64),
         bounds=np_(torch.stack(all_bounds, 1)).astype(np.float32),
         q_values=np_(torch.stack(qs, 1).float()),
+        reach_checks=checks,
+        reach_replaced=replaced,
     )
+
+
+def _reachable_choice(action, q_trans, q_rot, bounds, config, reachable: ReachabilityTest, top_k: int):
+    """(tests run, None) if ``action`` is reachable, else the best reachable (voxel, bins) of the top-K.
+
+    When no candidate is reachable either, the first choice stands (the episode then ends on
+    an unreachable pose, as in the reference).
+    """
+    if reachable(action.detach().cpu().numpy()):
+        return 1, None
+    checks, first = 1, action.detach().cpu()
+    for voxel, bins in zip(*ranked_candidates(q_trans, q_rot, top_k)):
+        pose = torch.cat([voxel_centre(voxel, bounds, config.voxel_size).float(),
+                          bins_to_rotation(bins, config.rotation_resolution)]).cpu()
+        if torch.allclose(pose, first[:7]):
+            continue  # the first choice itself: already known unreachable
+        checks += 1
+        if reachable(torch.cat([pose, first[7:]]).numpy()):
+            return checks, (voxel, bins)
+    return checks, None

@@ -23,7 +23,7 @@ class QAttentionConfig:
     kernels: int = 64  #: encoder width K (levels K, 2K, 4K); reference 64
     head_width: int = 128  #: width of the two hidden layers of the rotation/gripper MLP; reference 128
     padding: Literal["zeros", "replicate"] = "replicate"  #: conv padding mode; reference 'replicate'
-    bf16: bool = False  #: bf16 autocast for network forward/backward (loss stays fp32)
+    bf16: bool | Literal["auto"] = "auto"  #: bf16 autocast of the networks (loss stays fp32); "auto" = on where the device has native bf16 (precision.py)
     cameras: tuple[str, ...] = ("front",)  #: camera names fused into one grid
     image_crop: int = 64  #: crop size (px) of non-wrist images at depth>=1; 0 = off, 64 = reference
     episode_length: int = 10  #: max decisions per episode (time feature of the proprioception)
@@ -50,6 +50,8 @@ class QAttentionConfig:
             raise ValueError("voxel_size must be a power of two >= 4")
         if 360 % self.rotation_resolution:
             raise ValueError("rotation_resolution must divide 360")
+        if self.bf16 not in (True, False, "auto"):
+            raise ValueError(f"bf16 must be true, false or 'auto', not {self.bf16!r}")
         if self.padding not in ("zeros", "replicate"):
             raise ValueError(f"padding must be 'zeros' or 'replicate', not {self.padding!r}")
         if isinstance(self.bounds_offset, (list, tuple)) and len(self.bounds_offset) < self.depths - 1:
@@ -84,10 +86,10 @@ class QAttentionConfig:
 
 
 def paper() -> QAttentionConfig:
-    """The paper / reference: 2 x 16^3, K=64, replicate padding, fp32 (meant for a GPU learner)."""
+    """The paper / reference: 2 x 16^3, K=64, replicate padding (meant for a GPU learner; bf16 where native)."""
     return QAttentionConfig()
 
 
 def cpu_small() -> QAttentionConfig:
-    """What fits a 2-core CPU: K=32, bf16 autocast, zero padding (see README.md for the measurements)."""
-    return QAttentionConfig(kernels=32, head_width=64, padding="zeros", bf16=False)
+    """What fits a 2-core CPU: K=32, zero padding, bf16 where native (see BENCHMARKS.md for the measurements)."""
+    return QAttentionConfig(kernels=32, head_width=64, padding="zeros")

@@ -37,6 +37,8 @@ class ReplayConfig:
     priority_eps: float = 1e-6
     # Priority of the very first items (new items get the running max of all priorities set).
     initial_priority: float = 1.0
+    # Fraction of every batch drawn from demo transitions when the replay holds both demos and agent data; 0 = one proportional table over everything (the reference).
+    demo_fraction: float = 0.0
     # Minimum stored transitions before any batch is served.
     min_size_to_sample: int = 1_000
     # Target sampled transitions per inserted transition (Reverb SampleToInsertRatio); 0 disables.
@@ -86,6 +88,14 @@ class ReplayConfig:
     # Seconds between status messages (Heartbeat period).
     status_interval_s: float = 1.0
 
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ValueError for a setting no replay can run with (also after ``apply_overrides``)."""
+        if not 0.0 <= self.demo_fraction <= 1.0:
+            raise ValueError(f"demo_fraction must be in [0, 1] (the demo share of each batch), got {self.demo_fraction}")
+
 
 def apply_overrides(config: ReplayConfig, items: list[str]) -> ReplayConfig:
     """Apply ``name=value`` strings (``--set`` style) to ``config``, converting to each field's type."""
@@ -109,4 +119,5 @@ def apply_overrides(config: ReplayConfig, items: list[str]) -> ReplayConfig:
         else:
             value = text
         setattr(config, name, value)
+    config.validate()
     return config

@@ -398,9 +398,10 @@ class ReplayService:
                 with self.store_lock:
                     reason = self.limiter.sample_block_reason(req.batch_size, self.store.size)
                     if not reason:
-                        refs = self.store.sample(req.batch_size, self.rng, self.config.importance_beta)
+                        refs = self.store.sample(req.batch_size, self.rng, self.config.importance_beta,
+                                                 self.config.demo_fraction)
                         self.limiter.samples += req.batch_size
-                        info = self._batch_info()
+                        info = self._batch_info(refs[4])
                 if reason:
                     self.info["sample_wait"] = reason
                     blocked = True  # serve in order
@@ -420,11 +421,13 @@ class ReplayService:
                 keep.append((ident, req, deadline, wait))
         pending.extend(keep)
 
-    def _batch_info(self) -> dict[str, float]:
+    def _batch_info(self, episodes: list) -> dict[str, float]:
+        """Scalars sent with a batch (the learner logs each as ``replay_<key>``)."""
         return {
             "replay_size": float(self.store.size),
             "samples_per_insert": self.limiter.achieved(),
             "transitions_inserted": float(self.limiter.inserts),
+            "demo_share": sum(ep.is_demo for ep in episodes) / max(1, len(episodes)),  # of this batch
         }
 
     def _send(self, ident: bytes, batch: SampleBatch) -> None:
@@ -487,6 +490,7 @@ class ReplayService:
         now = time.monotonic()
         with self.store_lock:
             size, eps, nbytes = self.store.size, self.store.num_episodes, self.store.bytes
+            demo_size = self.store.demo_size
             ins, smp = self.limiter.inserts, self.limiter.samples
             sc = dict(self.store.counters)
             achieved = self.limiter.achieved()
@@ -496,6 +500,8 @@ class ReplayService:
         out = {
             "size_transitions": size,
             "size_episodes": eps,
+            "demo_transitions": demo_size,
+            "agent_transitions": size - demo_size,
             "bytes": nbytes,
             "capacity_transitions": self.store.capacity,
             "capacity_bytes": self.config.capacity_bytes,
@@ -505,6 +511,7 @@ class ReplayService:
             "samples_per_insert_target": self.limiter.spi,
             "transitions_inserted": ins,
             "transitions_sampled": smp,
+            "demo_transitions_sampled": sc["demo_transitions_sampled"],
             "episodes_stored": sc["episodes_stored"],
             "episodes_evicted": sc["episodes_evicted"],
             "priority_updates": sc["priority_updates"],

@@ -7,6 +7,13 @@ priority update for a slot that has since been overwritten is ignored), and poin
 ``(episode, t)``. Capacity is bounded in transitions (slots) and in bytes; the oldest
 episode is evicted first (demos last, if ``keep_demos``).
 
+Two tables, demo and agent, share the slot space: each slot's priority also sits in the sum
+tree of its episode's kind, so :meth:`EpisodeStore.sample` can give demos a fixed share of
+every batch (``demo_fraction``). Ten demos (~130 keyframe transitions) are ~1 % of a full
+replay, so proportional sampling alone draws them into ~1 % of each batch. With
+``demo_fraction = 0`` sampling is the reference's: one proportional distribution over every
+item, from the combined tree.
+
 Large per-camera arrays (``*_rgb``, ``*_points``) can be compressed per frame (lz4/zstd),
 so sampling one transition decompresses exactly two frames per array.
 
@@ -15,6 +22,7 @@ mutated after insertion, so a snapshot may hold references to them without copyi
 """
 from __future__ import annotations
 
+import math
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -112,7 +120,7 @@ class Snapshot:
     episodes: list[StoredEpisode]
     schema: Optional[dict[str, tuple[str, tuple[int, ...]]]]
     compression: str
-    priorities: np.ndarray  #: float64 [capacity]
+    priorities: np.ndarray  #: float64 [capacity]; a slot's table follows from its episode's is_demo
     slot_key: np.ndarray  #: int64 [capacity]
     free: np.ndarray  #: int64 free-slot stack
     state: dict  #: scalars: next_key, next_serial, max_priority, counters
@@ -129,7 +137,10 @@ class EpisodeStore:
             raise ValueError("capacity_transitions must be >= 1")
         self.capacity = cap
         self.codec = FrameCodec(config.compression, config.zstd_level)
-        self.tree = SumTree(cap)
+        self.tree = SumTree(cap)  #: every item: the one-table (reference) distribution; what snapshots store
+        self.tables = (SumTree(cap), SumTree(cap))  #: (agent, demo): each slot's priority, in its kind's tree only
+        self.slot_demo = np.zeros(cap, dtype=bool)  #: which table a slot belongs to
+        self.demo_size = 0  #: stored demo transitions (the agent table holds size - demo_size)
         self.slot_serial = np.full(cap, -1, dtype=np.int64)
         self.slot_t = np.zeros(cap, dtype=np.int32)
         self.slot_key = np.full(cap, -1, dtype=np.int64)
@@ -150,6 +161,7 @@ class EpisodeStore:
             "transitions_inserted": 0,
             "episodes_evicted": 0,
             "transitions_sampled": 0,
+            "demo_transitions_sampled": 0,
             "priority_updates": 0,
             "stale_priority_updates": 0,
         }
@@ -161,8 +173,23 @@ class EpisodeStore:
         return self.capacity - self.n_free
 
     @property
+    def agent_size(self) -> int:
+        """Stored transitions of agent (non-demo) episodes."""
+        return self.size - self.demo_size
+
+    @property
     def num_episodes(self) -> int:
         return len(self.episodes)
+
+    def _set_priorities(self, slots: np.ndarray, values) -> None:
+        """Write priorities to the combined tree and to each slot's own table."""
+        slots = np.asarray(slots, dtype=np.int64).reshape(-1)
+        values = np.broadcast_to(np.asarray(values, dtype=np.float64), slots.shape)
+        self.tree.set(slots, values)
+        demo = self.slot_demo[slots]
+        for kind, tree in enumerate(self.tables):
+            mask = demo == bool(kind)
+            tree.set(slots[mask], values[mask])
 
     # ------------------------------------------------------------------ dedup
     def is_duplicate(self, actor_id: str, episode_id: int) -> bool:
@@ -271,7 +298,9 @@ class EpisodeStore:
         self.slot_serial[slots] = stored.serial
         self.slot_t[slots] = np.arange(t_steps, dtype=np.int32)
         self.slot_key[slots] = keys
-        self.tree.set(slots, priorities)
+        self.slot_demo[slots] = stored.is_demo
+        self.demo_size += t_steps if stored.is_demo else 0
+        self._set_priorities(slots, priorities)
 
     def _evict_one(self) -> None:
         if self.config.keep_demos:
@@ -284,7 +313,9 @@ class EpisodeStore:
         serial, _ = fifo.popitem(last=False)
         ep = self.episodes.pop(serial)
         self.bytes -= ep.nbytes
-        self.tree.set(ep.slots, 0.0)
+        self._set_priorities(ep.slots, 0.0)
+        self.slot_demo[ep.slots] = False
+        self.demo_size -= ep.num_steps if ep.is_demo else 0
         self.slot_serial[ep.slots] = -1
         self.slot_key[ep.slots] = -1
         self.free[self.n_free : self.n_free + len(ep.slots)] = ep.slots[::-1]
@@ -292,20 +323,50 @@ class EpisodeStore:
         self.counters["episodes_evicted"] += 1
 
     # ------------------------------------------------------------------ sample
-    def sample(self, batch_size: int, rng: np.random.Generator, beta: float):
-        """Draw ``batch_size`` items; returns (slots, keys, probabilities, weights, episodes, ts)."""
-        slots = self.tree.sample(batch_size, rng)
-        total = self.tree.total
-        probs = self.tree.get(slots) / total
-        size = max(1, self.size)
+    def demo_count(self, batch_size: int, demo_fraction: float) -> Optional[int]:
+        """How many items of a batch come from the demo table; None: one table over everything.
+
+        ``round(demo_fraction * batch_size)`` (halves up), but at least one item from each
+        table when ``0 < demo_fraction < 1`` and the batch has room for both, so that neither
+        kind silently vanishes from a small batch. None (the reference's one proportional
+        table) when the fraction is 0 or either table has nothing to sample: a batch then
+        comes from whatever exists.
+        """
+        if demo_fraction <= 0 or self.tables[0].total <= 0 or self.tables[1].total <= 0:
+            return None
+        if demo_fraction >= 1:
+            return batch_size
+        n = math.floor(demo_fraction * batch_size + 0.5)
+        return min(max(n, 1), batch_size - 1) if batch_size >= 2 else n
+
+    def sample(self, batch_size: int, rng: np.random.Generator, beta: float, demo_fraction: float = 0.0):
+        """Draw ``batch_size`` items; returns (slots, keys, probabilities, weights, episodes, ts).
+
+        With a demo share (see :meth:`demo_count`) the first ``n_demo`` items come from the
+        demo table and the rest from the agent table, each proportionally to priority within
+        its table: ``P(i) = p_i / total of i's table`` and ``w = (N_table * P(i)) ** -beta``,
+        normalised by the batch max. Otherwise one table over all ``N`` items (the reference).
+        """
+        n_demo = self.demo_count(batch_size, demo_fraction)
+        if n_demo is None:
+            slots = self.tree.sample(batch_size, rng)
+            probs = self.tree.get(slots) / self.tree.total
+            n_items = np.full(batch_size, float(max(1, self.size)))
+        else:
+            demo, agent = self.tables[1], self.tables[0]
+            d_slots, a_slots = demo.sample(n_demo, rng), agent.sample(batch_size - n_demo, rng)
+            slots = np.concatenate([d_slots, a_slots])
+            probs = np.concatenate([demo.get(d_slots) / demo.total, agent.get(a_slots) / agent.total])
+            n_items = np.repeat([float(self.demo_size), float(self.agent_size)], [len(d_slots), len(a_slots)])
         with np.errstate(divide="ignore"):
-            w = np.power(size * probs, -beta) if beta else np.ones_like(probs)
+            w = np.power(n_items * probs, -beta) if beta else np.ones_like(probs)
         w = w / w.max()
         serials = self.slot_serial[slots]
         if (serials < 0).any():
             raise RuntimeError("sampled an empty slot")  # find() never returns a zero leaf
         episodes = [self.episodes[int(s)] for s in serials]
         self.counters["transitions_sampled"] += batch_size
+        self.counters["demo_transitions_sampled"] += int(self.slot_demo[slots].sum())
         return (
             slots.astype(np.int64),
             self.slot_key[slots].copy(),
@@ -359,7 +420,7 @@ class EpisodeStore:
         applied = int(ok.sum())
         if applied:
             vals = np.maximum(np.power(p[ok], self.config.priority_alpha), self.config.priority_eps)
-            self.tree.set(indices[ok], vals)
+            self._set_priorities(indices[ok], vals)
             self.max_priority = max(self.max_priority, float(vals.max()))
         stale = len(indices) - applied
         self.counters["priority_updates"] += applied

@@ -64,3 +64,19 @@ def test_agent_reports_per_stage_timings():
     env.close()
     assert set(r.info["timings"]) == {"ik", "plan", "trajectory", "execute", "gripper"}
     assert r.info["control_steps"] >= 1
+
+
+def test_reachability_test_agrees_with_execution_and_costs_no_second_ik():
+    from actors.sim import PandaEnv, SimConfig
+    env = PandaEnv(SimConfig(task="pick_and_lift", cameras=()))
+    env.reset(3)
+    grasp = env.demo_waypoints()[0].action()
+    upside_down = np.concatenate([grasp[:3], [0.0, 0.0, 0.0, 1.0], grasp[7:]])  # fingers up, at the block
+    assert not env.reachable(upside_down)
+    assert env.reachable(grasp)
+    solved = env.control._reached[1]
+    r = env.step(grasp)
+    assert not r.unreachable and r.info["timings"]["ik"] < 1e-3  # the goal reachable() found was reused
+    np.testing.assert_allclose(env.scene.joint_state()[0], solved, atol=0.02)
+    assert env.step(upside_down).info["reason"] == "ik_failed"
+    env.close()

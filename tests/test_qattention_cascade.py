@@ -6,6 +6,7 @@ import torch
 
 from protocol.observation import CameraFrame, Observation
 from qattention import C2FARM, ObservationBatch, QAttentionConfig, descend
+from qattention.action_codec import bins_to_rotation
 from qattention.crop import crop_images, gather_points, project_to_pixel
 from qattention.synthetic import observation_arrays
 
@@ -102,3 +103,59 @@ def test_exploration_changes_choices_at_the_rate_asked(kind):
     partly = descend(obs, [occupancy_q(some)] * 2, some, explore=True, generator=g)
     rate = (partly.rot_grip_indices[:, 3] != greedy.rot_grip_indices[:, 3]).mean()
     assert 0.15 < rate < 0.35
+
+
+def graded_q(config, seed=0, occupied=1.0):
+    """Q ``occupied`` on occupied voxels, else 0; rotation Q random in [0, 0.1) with a clear best (7, 20, 50)."""
+    rot = torch.rand(3, config.rotation_bins, generator=torch.Generator().manual_seed(seed)) * 0.1
+    for axis, b in enumerate((7, 20, 50)):
+        rot[axis, b] = 1.0
+
+    def q(grid, proprio):
+        rg = torch.cat([rot.reshape(-1), torch.tensor([0.0, 1.0])]).expand(grid.shape[0], -1)
+        return occupied * grid[:, 9], rg
+
+    return q, rot
+
+
+def test_an_unreachable_rotation_gives_way_to_the_best_reachable_one():
+    targets = np.array([[0.2, 0.0, 1.0], [0.1, 0.1, 0.9]])
+    q, rot = graded_q(CFG)
+    first = descend(single_point_scene(targets), [q] * 2, CFG)
+    banned = bins_to_rotation(torch.tensor([7, 20, 50]), CFG.rotation_resolution).numpy()
+    asked = []
+
+    def reachable(action):  # sample 0's first choice cannot be reached; everything else can
+        asked.append(action)
+        return not (np.allclose(action[:3], first.action[0, :3]) and np.allclose(action[3:7], banned))
+
+    result = descend(single_point_scene(targets), [q] * 2, CFG, reachable=reachable, top_k=8)
+    # the best other triplet by mean Q, the voxel kept (its translation Q dominates)
+    score = (rot[0][:, None, None] + rot[1][None, :, None] + rot[2][None, None, :]).numpy() / 3
+    score[7, 20, 50] = -1
+    expected = np.unravel_index(score.argmax(), score.shape)
+    assert result.rot_grip_indices[0, :3].tolist() == list(expected)
+    assert result.reach_replaced.tolist() == [True, False] and result.reach_checks.tolist() == [2, 1]
+    np.testing.assert_array_equal(result.voxel_indices, first.voxel_indices)
+    # labels and action agree: the stored bins are the executed rotation
+    np.testing.assert_allclose(result.action[0, 3:7],
+                               bins_to_rotation(torch.tensor(expected), CFG.rotation_resolution).numpy(), atol=1e-6)
+    np.testing.assert_array_equal(result.action[1], first.action[1])
+    assert len(asked) == 3
+
+
+def test_a_replaced_translation_keeps_labels_consistent_and_nothing_reachable_keeps_the_first_choice():
+    targets = np.array([[0.2, 0.0, 1.0]])
+    q, _ = graded_q(CFG, occupied=0.01)  # a weak voxel preference: other voxels outrank other rotations
+    first = descend(single_point_scene(targets), [q] * 2, CFG)
+    away = descend(single_point_scene(targets), [q] * 2, CFG, top_k=6,
+                   reachable=lambda a: not np.allclose(a[:3], first.action[0, :3]))
+    assert away.reach_replaced[0] and not np.allclose(away.action[0, :3], first.action[0, :3])
+    np.testing.assert_allclose(away.attention_coordinates[0, -1], away.action[0, :3])
+    np.testing.assert_array_equal(away.voxel_indices[0, 0], first.voxel_indices[0, 0])  # depth 0 unchanged
+    assert away.q_values[0, -1] < first.q_values[0, -1]  # an unoccupied voxel's Q
+    stuck = descend(single_point_scene(targets), [q] * 2, CFG, reachable=lambda a: False, top_k=6)
+    np.testing.assert_array_equal(stuck.action, first.action)
+    assert stuck.reach_checks.tolist() == [6] and not stuck.reach_replaced[0]
+    off = descend(single_point_scene(targets), [q] * 2, CFG, reachable=lambda a: 1 / 0, top_k=0)
+    assert off.reach_checks is None  # off: never asks

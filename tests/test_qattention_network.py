@@ -53,3 +53,16 @@ def test_bf16_autocast_outputs_stay_float32_and_close():
         q16, rg16 = net(x, p)
     assert q16.dtype == torch.float32 and rg16.dtype == torch.float32
     assert (q16 - q32).abs().max() < 0.1 * q32.abs().max() + 0.05
+
+
+def test_bf16_auto_is_on_only_where_the_device_has_native_bf16():
+    from qattention import C2FARM
+    from qattention.precision import NATIVE_BF16_CPU_FLAGS, cpu_flags, use_bf16
+
+    cpu = torch.device("cpu")
+    native = bool(NATIVE_BF16_CPU_FLAGS & cpu_flags())
+    small = QAttentionConfig(voxel_size=8, kernels=8, head_width=16, rotation_resolution=10)
+    assert C2FARM(small).bf16 is native  # the default is "auto"
+    assert use_bf16(True, cpu) and not use_bf16(False, cpu)  # an explicit choice is kept
+    with pytest.raises(ValueError, match="bf16"):
+        QAttentionConfig(bf16="yes")

@@ -297,3 +297,19 @@ def test_rate_limiter_times_out_cleanly_and_holds_the_ratio(harness, fabric):
         assert 56 - 8 < sampled <= 56
         c = fabric.wait_status(lambda c: c["sample_timeouts"] >= 2)
         assert c["transitions_sampled"] == sampled
+
+
+def test_served_batches_carry_the_demo_share(harness, fabric):
+    harness.start_server("demo_fraction=0.25", "checkpoint_interval_s=0")
+    key = keys.episodes(fabric.run_id, "source")
+    fabric.session.put(key, encode(synthetic_episode("source", 0, size=SIZE, is_demo=True)))
+    for eid in range(1, 8):
+        fabric.session.put(key, encode(synthetic_episode("source", eid, size=SIZE)))
+    c = fabric.wait_status(lambda c: c["episodes_stored"] == 8)
+    assert (c["demo_transitions"], c["agent_transitions"]) == (10, 70)
+    with ReplayClient(harness.zmq, batch_size=8, prefetch=1) as client:
+        for _ in range(3):
+            batch = client.sample(timeout_s=20)
+            assert batch.arrays["is_demo"].sum() == 2 and batch.info["demo_share"] == 0.25
+    c = fabric.wait_status(lambda c: c["demo_transitions_sampled"] >= 6)
+    assert c["demo_transitions_sampled"] == c["transitions_sampled"] / 4

@@ -185,6 +185,158 @@ def test_config_overrides():
         apply_overrides(ReplayConfig(), ["nope=1"])
 
 
+# ---------------------------------------------------------------- demo share (demo and agent tables)
+
+
+def mixed_store(demos=1, agents=60, **kw) -> EpisodeStore:
+    """A replay like a run's: a few demo episodes among many agent ones (1 + 60 -> 1.6 % demos)."""
+    kw.setdefault("capacity_transitions", 10 * (demos + agents))
+    store = make_store(**kw)
+    fill(store, demos, actor="demo", is_demo=True)
+    fill(store, agents, actor="live")
+    return store
+
+
+def set_random_priorities(store, rng, low=0.1, high=3.0) -> np.ndarray:
+    """Give every stored item a random priority; returns them indexed by slot."""
+    slots = np.concatenate([ep.slots for ep in store.episodes.values()])
+    store.update_priorities(slots, store.slot_key[slots], rng.uniform(low, high, len(slots)))
+    return store.tree.leaves()
+
+
+def test_demo_count_rounds_and_keeps_both_tables():
+    store = mixed_store()
+    assert [store.demo_count(8, f) for f in (0.25, 0.01, 0.99, 1.0)] == [2, 1, 7, 8]
+    assert store.demo_count(10, 0.25) == 3 and store.demo_count(128, 0.25) == 32  # round half up
+    assert store.demo_count(1, 0.25) == 0 and store.demo_count(1, 0.5) == 1  # no room for both
+    assert store.demo_count(8, 0.0) is None  # the reference: one table over everything
+    assert make_store().demo_count(8, 0.25) is None  # nothing stored: nothing to split
+
+
+def test_demo_fraction_gives_every_batch_its_demo_share():
+    store = mixed_store()  # 10 demo and 600 agent transitions
+    assert (store.demo_size, store.agent_size) == (10, 600)
+    set_random_priorities(store, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        s, k, probs, w, eps, ts = store.sample(8, rng, 0.5, demo_fraction=0.25)
+        assert [ep.is_demo for ep in eps] == [True, True] + [False] * 6  # demo items come first
+        assert store.gather(eps, ts)["is_demo"].sum() == 2
+    assert store.counters["demo_transitions_sampled"] == 400
+    # without a share the same replay gives demos ~1.6 % of a batch: what the option is for
+    demo = [ep.is_demo for _ in range(500) for ep in store.sample(8, rng, 0.5)[4]]
+    assert np.mean(demo) < 0.05
+
+
+def test_demo_table_sampling_follows_priorities():
+    store = mixed_store(demos=2, capacity_transitions=700)
+    prio = set_random_priorities(store, np.random.default_rng(2))
+    demo_slots = np.flatnonzero(store.slot_demo)
+    favourite = demo_slots[7]
+    store.update_priorities([favourite], store.slot_key[[favourite]], [30.0])
+    prio[favourite] = 30.0
+    rng = np.random.default_rng(3)
+    counts = np.zeros(store.capacity)
+    for _ in range(500):
+        s, *_ = store.sample(64, rng, 0.5, demo_fraction=0.5)
+        np.add.at(counts, s[:32], 1)  # the demo half
+    n = 500 * 32
+    assert counts.sum() == counts[demo_slots].sum() == n
+    expected = n * prio[demo_slots] / prio[demo_slots].sum()  # p_i / total of the demo table
+    chi2 = (((counts[demo_slots] - expected) ** 2) / expected).sum()
+    assert chi2 < 43.8  # chi-square, 19 degrees of freedom, p = 0.001
+    assert counts[favourite] > 0.3 * n  # ~30/60 of the demo draws
+
+
+def test_importance_weights_are_per_table():
+    store = mixed_store()
+    prio = set_random_priorities(store, np.random.default_rng(4))
+    s, k, probs, w, eps, ts = store.sample(64, np.random.default_rng(5), 0.5, demo_fraction=0.25)
+    demo = store.slot_demo[s]
+    table_total = np.where(demo, prio[store.slot_demo].sum(), prio[~store.slot_demo].sum())
+    table_size = np.where(demo, store.demo_size, store.agent_size)
+    assert np.allclose(probs, prio[s] / table_total, rtol=1e-6)  # P(i) within i's table
+    ref = (table_size * prio[s] / table_total) ** -0.5
+    assert np.allclose(w, ref / ref.max(), rtol=1e-5)
+    assert (w > 0).all() and (w <= 1).all() and w.max() == 1.0
+
+
+def test_demo_fraction_zero_is_the_one_table_reference():
+    store = mixed_store(demos=3, agents=3)  # demos are half the replay here
+    prio = set_random_priorities(store, np.random.default_rng(6))
+    reference = SumTree(store.capacity)  # the old store: one tree over everything
+    reference.set(np.arange(store.capacity), prio)
+    s, k, probs, w, *_ = store.sample(256, np.random.default_rng(7), 0.5, demo_fraction=0.0)
+    assert np.array_equal(s, reference.sample(256, np.random.default_rng(7)))  # the same draws, bit for bit
+    ref_w = (store.size * prio[s] / prio.sum()) ** -0.5
+    assert np.allclose(probs, prio[s] / prio.sum(), rtol=1e-6) and np.allclose(w, ref_w / ref_w.max(), rtol=1e-5)
+    counts = np.zeros(store.capacity)
+    rng = np.random.default_rng(8)
+    for _ in range(120):
+        np.add.at(counts, store.sample(500, rng, 0.5)[0], 1)
+    expected = 60_000 * prio[:60] / prio[:60].sum()
+    assert ((counts[:60] - expected) ** 2 / expected).sum() < 99.6  # chi-square, 59 dof, p = 0.001
+
+
+def test_demo_fraction_with_only_one_kind_samples_what_exists():
+    for is_demo in (True, False):
+        store = make_store()
+        fill(store, 3, is_demo=is_demo)
+        for f in (0.25, 1.0):
+            a = store.sample(8, np.random.default_rng(9), 0.5, demo_fraction=f)
+            b = store.sample(8, np.random.default_rng(9), 0.5)  # the one-table draw
+            assert all(ep.is_demo == is_demo for ep in a[4])
+            assert all(np.array_equal(x, y) for x, y in zip(a[:4], b[:4]))
+
+
+def test_evicting_agent_episodes_keeps_the_demo_table():
+    store = make_store(capacity_transitions=50, keep_demos=True)
+    fill(store, 1, actor="demo", is_demo=True)
+    fill(store, 3, actor="live")
+    demo_slots = np.flatnonzero(store.slot_demo)
+    store.update_priorities(demo_slots, store.slot_key[demo_slots], np.arange(1.0, 11.0))
+    demo_total = store.tables[1].total
+    fill(store, 10, actor="live", start=3)  # evicts agent episodes only
+    assert store.counters["episodes_evicted"] == 9 and (store.demo_size, store.agent_size) == (10, 40)
+    assert store.tables[1].total == demo_total and np.array_equal(np.flatnonzero(store.slot_demo), demo_slots)
+    agent, demo = store.tables[0].leaves(), store.tables[1].leaves()
+    assert not (agent * demo).any() and np.array_equal(agent + demo, store.tree.leaves())  # each slot in one table
+    eps = store.sample(8, np.random.default_rng(10), 0.5, demo_fraction=0.25)[4]
+    assert sum(ep.is_demo for ep in eps) == 2
+    # without keep_demos the demo episode ages out like any other, and its table empties
+    plain = make_store(capacity_transitions=50, keep_demos=False)
+    fill(plain, 1, actor="demo", is_demo=True)
+    fill(plain, 5, actor="live")
+    assert plain.demo_size == 0 and plain.tables[1].total == 0.0
+    assert not any(ep.is_demo for ep in plain.sample(8, np.random.default_rng(11), 0.5, demo_fraction=0.25)[4])
+
+
+def test_demo_share_survives_checkpoint_restore(tmp_path):
+    store = mixed_store(compression="zstd")
+    set_random_priorities(store, np.random.default_rng(12))
+    store.sample(8, np.random.default_rng(13), 0.5, demo_fraction=0.25)
+    restored = make_store(capacity_transitions=store.capacity, compression="zstd")
+    restored.restore(load_checkpoint(write_checkpoint(tmp_path, store.snapshot()).path))
+    assert (restored.demo_size, restored.agent_size) == (store.demo_size, store.agent_size)
+    assert np.array_equal(restored.slot_demo, store.slot_demo)
+    for mine, theirs in zip(restored.tables, store.tables):
+        assert np.array_equal(mine.leaves(), theirs.leaves())
+    assert restored.counters["demo_transitions_sampled"] == 2
+    a = store.sample(8, np.random.default_rng(14), 0.5, demo_fraction=0.25)
+    b = restored.sample(8, np.random.default_rng(14), 0.5, demo_fraction=0.25)
+    assert all(np.array_equal(x, y) for x, y in zip(a[:4], b[:4]))
+    assert sum(ep.is_demo for ep in b[4]) == 2
+
+
+def test_demo_fraction_must_be_a_fraction():
+    assert apply_overrides(ReplayConfig(), ["demo_fraction=0.25"]).demo_fraction == 0.25
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="demo_fraction must be in"):
+            ReplayConfig(demo_fraction=bad)
+    with pytest.raises(ValueError, match="demo_fraction must be in"):
+        apply_overrides(ReplayConfig(), ["demo_fraction=2"])
+
+
 # ---------------------------------------------------------------- checkpoints and WAL
 
 

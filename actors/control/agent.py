@@ -63,9 +63,11 @@ class ControlAgent:
                                      self.config.simplify_time, seed)
         self.substeps = max(1, scene.physics_hz // self.config.control_hz)
         self._mirror: list[tuple[int, int]] = []
+        self._reached: tuple[bytes, np.ndarray] | None = None  #: (pose + joints, IK goal) of the last reachable()
 
     def set_obstacles(self, spawn: Callable[[int], dict[str, int]], sim_bodies: dict[str, int], names, ignores) -> None:
         """Mirror the task's obstacles into the collision world (spawned there from the same parameters)."""
+        self._reached = None  # a new scene: nothing solved before it holds
         mirrored = {n: b for n, b in spawn(self.world.client).items()}
         keep = {n: mirrored.pop(n) for n in names}
         for body in mirrored.values():
@@ -83,20 +85,21 @@ class ControlAgent:
         on_step = on_step or (lambda: None)
         timings: dict[str, float] = {}
         action = np.asarray(action, dtype=float)
-        if action.shape != (8,) or not np.all(np.isfinite(action)) or np.linalg.norm(action[3:7]) < 1e-6:
-            return ControlOutcome(False, "invalid_action", timings)
-        pos, quat = action[:3], action[3:7] / np.linalg.norm(action[3:7])
-        lo, hi = np.asarray(workspace[:3]), np.asarray(workspace[3:])
-        if np.any(pos < lo) or np.any(pos > hi):
-            return ControlOutcome(False, "out_of_workspace", timings)
+        pose, reason = self._target(action, workspace)
+        if pose is None:
+            return ControlOutcome(False, reason, timings)
+        pos, quat, q0 = pose
         scene = self.scene
-        q0, _ = scene.joint_state()
-        self.world.sync(scene.client, self._mirror)
-        self.world.allowed = set(self.world.contacts(q0))
 
         t = time.perf_counter()
         path = self._linear_path(q0, pos, quat) if linear else None
-        goal = path[-1] if path is not None else self.ik.solve(pos, quat, q0, accept=self.world.is_valid)
+        if path is not None:
+            goal = path[-1]
+        elif self._reached is not None and self._reached[0] == self._key(action, q0):
+            goal = self._reached[1]  # reachable() just solved this very pose from this very state
+        else:
+            goal = self.ik.solve(pos, quat, q0, accept=self.world.is_valid)
+        self._reached = None
         timings["ik"] = time.perf_counter() - t
         if goal is None:
             return ControlOutcome(False, "ik_failed", timings)
@@ -140,6 +143,43 @@ class ControlAgent:
             steps += 1
         timings["gripper"] = time.perf_counter() - t
         return ControlOutcome(True, None, timings, plan.used_ompl, steps, plan.path)
+
+    def reachable(self, action: np.ndarray, workspace, restarts: int = 4) -> bool:
+        """Whether ``execute(action)`` would find a collision-free IK goal: IK only, no planning.
+
+        Cheap (a few ms) because IK gets ``restarts`` restarts instead of 24; a pose that needs
+        more is reported unreachable. The solution is kept, so executing this pose next
+        reuses it rather than solving again (IK is deterministic, so it is the same goal).
+        """
+        action = np.asarray(action, dtype=float)
+        pose, _ = self._target(action, workspace)
+        if pose is None:
+            return False
+        pos, quat, q0 = pose
+        goal = self.ik.solve(pos, quat, q0, accept=self.world.is_valid, restarts=restarts)
+        if goal is not None:
+            self._reached = (self._key(action, q0), goal)
+        return goal is not None
+
+    def _target(self, action: np.ndarray, workspace):
+        """((position, unit quaternion, current joints), None) for a valid pose in the workspace, else (None, why).
+
+        Also brings the collision world up to date with the scene, as IK checks against it.
+        """
+        if action.shape != (8,) or not np.all(np.isfinite(action)) or np.linalg.norm(action[3:7]) < 1e-6:
+            return None, "invalid_action"
+        pos, quat = action[:3], action[3:7] / np.linalg.norm(action[3:7])
+        lo, hi = np.asarray(workspace[:3]), np.asarray(workspace[3:])
+        if np.any(pos < lo) or np.any(pos > hi):
+            return None, "out_of_workspace"
+        q0, _ = self.scene.joint_state()
+        self.world.sync(self.scene.client, self._mirror)
+        self.world.allowed = set(self.world.contacts(q0))
+        return (pos, quat, q0), None
+
+    @staticmethod
+    def _key(action: np.ndarray, q0: np.ndarray) -> bytes:
+        return action[:7].tobytes() + q0.tobytes()
 
     def _linear_path(self, q0: np.ndarray, pos: np.ndarray, quat: np.ndarray) -> np.ndarray | None:
         """Joint path [N, 7] following the straight grasp-frame line, IK seeded from the previous point."""

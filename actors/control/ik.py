@@ -35,6 +35,11 @@ def orientation_error(target, current) -> np.ndarray:
     return np.zeros(3) if s < 1e-12 else dq[:3] / s * 2 * np.arctan2(s, dq[3])
 
 
+#: A refinement that has not cut its error by 1 % in 10 iterations is stuck: unreachable poses
+#: used to spend all 100 iterations of every restart there (1.5 s per failed pose, BENCHMARKS.md).
+STALL_EVERY, STALL_RATIO = 10, 0.99
+
+
 class IKSolver:
     """Solves in the collision world's client so the physics is never touched."""
 
@@ -46,12 +51,18 @@ class IKSolver:
     def _refine(self, q: np.ndarray, position, quaternion, rest: np.ndarray) -> tuple[np.ndarray, float, float]:
         client, robot = self.world.client, self.world.robot
         perr = aerr = np.inf
-        for _ in range(self.iterations):
+        checkpoint = np.inf  # the error STALL_EVERY iterations ago
+        for i in range(self.iterations):
             pos, orn = self.world.fk(q)
             e = np.concatenate([position - pos, orientation_error(quaternion, orn)])
             perr, aerr = np.linalg.norm(e[:3]), np.linalg.norm(e[3:])
             if perr < self.position_tol * 0.25 and aerr < self.angle_tol * 0.25:
                 break
+            if i % STALL_EVERY == 0:
+                err = perr / self.position_tol + aerr / self.angle_tol
+                if err > STALL_RATIO * checkpoint:
+                    break  # stuck in a local minimum (an unreachable pose): let the next restart try
+                checkpoint = err
             jl, ja = p.calculateJacobian(robot, GRASP_LINK, (0, 0, 0), list(q) + [0.04, 0.04], [0.0] * 9, [0.0] * 9,
                                          physicsClientId=client)
             jac = np.vstack([np.array(jl)[:, :7], np.array(ja)[:, :7]])

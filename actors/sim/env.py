@@ -103,6 +103,10 @@ class PandaEnv:
         reward = SUCCESS_REWARD if self.success else 0.0
         return StepResult(obs, reward, self.success or timeout, self.success, False, info)
 
+    def reachable(self, action: np.ndarray) -> bool:
+        """Could the arm take this next-best pose from where it is now? (IK only; see ControlAgent.reachable)."""
+        return self.control.reachable(action, self.task.scene_bounds)
+
     def observe(self) -> Observation:
         """Render the configured cameras and read the proprioception."""
         s, c = self.scene, self.config
