@@ -33,6 +33,7 @@ Outputs, from each run's ``runs/<id>/metrics/eval.csv`` (columns read by name):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import os
@@ -335,6 +336,23 @@ def run_budgeted(cmd: Sequence[str], run_dir: Path, budget_s: float, progress_ev
     return code
 
 
+#: A bounded busy loop: spins until its deadline (seconds since the epoch), then exits by itself.
+HOG = "import sys, time\nend = float(sys.argv[1])\nwhile time.time() < end:\n    pass\n"
+
+
+@contextlib.contextmanager
+def cpu_hog(cores: int, seconds: float):
+    """Keep ``cores`` cores busy for at most ``seconds`` (the busy-machine condition), then stop."""
+    deadline = time.time() + seconds + 120  # a hog left behind by a killed bench still ends by itself
+    hogs = [subprocess.Popen([sys.executable, "-c", HOG, str(deadline)]) for _ in range(cores)]
+    try:
+        yield
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+
+
 def launch_command(args: argparse.Namespace, run_id: str, seed: Optional[int]) -> list[str]:
     """``c2farm launch`` for one run; the user's ``--set`` items come last, so they win."""
     cmd = [sys.executable, "-m", "deploy.cli", "launch", "--preset", args.preset, "--task", args.task,
@@ -355,8 +373,10 @@ def train(args: argparse.Namespace, run_id: str, seed: Optional[int]) -> bool:
         print(f"{run_id}: budget of {args.minutes:g} min already spent, skipping", flush=True)
         return True
     cmd = launch_command(args, run_id, seed)
-    print(f"{run_id}: {left / 60:.1f} of {args.minutes:g} min left\n+ {' '.join(cmd)}", flush=True)
-    code = run_budgeted(cmd, run_dir, budget_s)
+    hog = f", {args.cpu_hog} core(s) kept busy beside it" if args.cpu_hog else ""
+    print(f"{run_id}: {left / 60:.1f} of {args.minutes:g} min left{hog}\n+ {' '.join(cmd)}", flush=True)
+    with cpu_hog(args.cpu_hog, left):
+        code = run_budgeted(cmd, run_dir, budget_s)
     if code is not None:
         print(f"{run_id}: launcher exited by itself with code {code}", flush=True)
     plot(run_dir)
@@ -414,6 +434,8 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--results-dir", default="bench/results", help="where aggregate curves go")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every seed")
     parser.add_argument("--thresholds", type=float, nargs="+", default=[0.8, 0.9], help="success rates to time")
+    parser.add_argument("--cpu-hog", type=int, default=0, metavar="CORES",
+                        help="keep this many cores busy during each run (robustness to a shared machine)")
     parser.add_argument("--plot-only", action="store_true", help="only re-aggregate and re-plot existing runs")
     parser.add_argument("--summary", action="store_true", help="only print the threshold table")
     return parser.parse_args(argv)
