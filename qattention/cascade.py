@@ -24,6 +24,8 @@ from .reachability import ReachabilityTest, ranked_candidates
 from .voxelise import child_bounds, unflatten_index, voxel_centre, voxelise
 
 QFunction = Callable[[torch.Tensor, torch.Tensor], tuple]
+#: Reachability candidates' rotations differ by at least this much per Euler axis (reachability.py).
+REACH_SEPARATION_DEG = 30
 
 
 @dataclass
@@ -120,7 +122,8 @@ def _reachable_choice(action, q_trans, q_rot, bounds, config, reachable: Reachab
     if reachable(action.detach().cpu().numpy()):
         return 1, None
     checks, first = 1, action.detach().cpu()
-    for voxel, bins in zip(*ranked_candidates(q_trans, q_rot, top_k)):
+    separation = max(1, REACH_SEPARATION_DEG // config.rotation_resolution)
+    for voxel, bins in zip(*ranked_candidates(q_trans, q_rot, top_k, separation)):
         pose = torch.cat([voxel_centre(voxel, bounds, config.voxel_size).float(),
                           bins_to_rotation(bins, config.rotation_resolution)]).cpu()
         if torch.allclose(pose, first[:7]):
