@@ -17,7 +17,7 @@ import torch
 
 from actors.config import ActorConfig
 from actors.outbox import Outbox
-from actors.weights import WeightsFollower, tensors_from_update
+from actors.weights import WeightsFollower
 from protocol.episode import Episode, stack_observations
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
@@ -41,7 +41,8 @@ class Rollout:
     terminals: list[bool] = field(default_factory=list)
     success: bool = False
     timeout: bool = False
-    reason: str = ""
+    reason: str = ""  #: why it ended: success, timeout, unreachable or failed
+    unreachable_reason: str = ""  #: the control agent's why, for an unreachable end (UNREACHABLE_REASONS)
     reach_checks: int = 0  #: reachability tests run while acting (reachable_top_k)
     reach_replaced: int = 0  #: decisions whose first choice was unreachable and a reachable candidate took over
 
@@ -81,6 +82,7 @@ def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, to
             pad_act_labels(result.observations, agent.config.depths)
             result.success = bool(step.success)
             result.reason = "success" if step.success else ("unreachable" if step.unreachable else "failed")
+            result.unreachable_reason = step.info.get("reason", "") if step.unreachable else ""
             return result
     pad_act_labels(result.observations, agent.config.depths)
     # Out of decisions: the reference treats a timeout as terminal too (c2farm_spec §10.5).
@@ -121,7 +123,7 @@ def to_episode(r: Rollout, actor_id: str, episode_id: int, task: str, seed: int,
         rewards=np.asarray(r.rewards, dtype=np.float32),
         terminals=np.asarray(r.terminals, dtype=bool),
         policy_versions=np.full(steps, version, dtype=np.int64),
-        info={"end": r.reason},
+        info={"end": r.reason, **({"unreachable": r.unreachable_reason} if r.unreachable_reason else {})},
     )
 
 
@@ -145,10 +147,8 @@ class ActingPolicy:
     def refresh(self) -> bool:
         """Swap in the newest received weights, if any; True when the policy changed."""
         update = self.follower.newer()
-        if update is None:
-            return False
-        self.agent.load_weights(tensors_from_update(update))
-        self.follower.version = update.version
+        if update is None or not self.follower.adopt(update, self.agent.load_weights):
+            return False  # nothing new, or it did not fit the networks (counted; the old weights stay)
         self.swaps += 1
         return True
 
@@ -182,7 +182,8 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
 
     def counters() -> dict[str, float]:
         return {**stats, **outbox.counters, "outbox_pending": outbox.pending, "weights_version": policy.version,
-                "weights_latency_s": follower.latency_s, "success_rate": stats["successes"] / max(1, stats["episodes"]),
+                **follower.counters(), "weights_latency_s": follower.latency_s,
+                "success_rate": stats["successes"] / max(1, stats["episodes"]),
                 "unreachable_rate": stats["unreachable"] / max(1, stats["episodes"])}
 
     heartbeat = Heartbeat(session, ctx.run_id, "actor", ctx.instance, counters=counters,
@@ -205,6 +206,9 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             stats["env_steps"] += len(r.actions)
             stats["successes"] += int(r.success)
             stats["unreachable"] += int(r.reason == "unreachable")
+            if r.unreachable_reason:
+                key = f"unreachable_{r.unreachable_reason}"
+                stats[key] = stats.get(key, 0) + 1
             stats["reach_checks"] += r.reach_checks
             stats["reach_replaced"] += r.reach_replaced
         outbox.flush(timeout_s=2.0)  # inside the launcher's grace period; what is still unacknowledged after this is lost

@@ -80,7 +80,7 @@ def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10
                 outbox.send(episode)
                 published["demo_episodes"] += 1
             published["demos"] += 1
-        flushed = outbox.flush(timeout_s=120.0)
+        flushed = outbox.flush(timeout_s=120.0, stop=ctx.stop)
         log.info("published %d demo episodes from %d demos (%s)", published["demo_episodes"],
                  published["demos"], "all acknowledged" if flushed else f"{outbox.pending} unacknowledged")
         return 0 if flushed else 1

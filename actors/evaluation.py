@@ -16,7 +16,7 @@ import torch
 
 from actors.actor_loop import ActingPolicy, rollout
 from actors.config import ActorConfig
-from actors.weights import WeightsFollower, tensors_from_update
+from actors.weights import WeightsFollower
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
 from protocol.role import RoleContext
@@ -87,9 +87,10 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
 
     def counters() -> dict[str, float]:
         if latest is None:
-            return {"evaluations": 0}
+            return {"evaluations": 0, **follower.counters()}
         return {"eval_success": latest.success_rate, "eval_return": latest.mean_return,
-                "eval_version": latest.weights_version, "eval_env_steps": latest.env_steps}
+                "eval_unreachable": latest.unreachable_rate, "eval_version": latest.weights_version,
+                "eval_env_steps": latest.env_steps, **follower.counters()}
 
     heartbeat = Heartbeat(session, ctx.run_id, "eval", ctx.instance, counters=counters,
                           info=lambda: {"task": sim_config.task})
@@ -98,11 +99,13 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
         while not ctx.stop.is_set():
             follower.fetch_latest(timeout_s=2.0)
             update = follower.newer()
+            if update is not None and update.version < evaluated_version:
+                evaluated_version = 0  # resynced below a version the learner never announced: start afresh
             if update is None or (evaluated_version and update.version < evaluated_version + config.eval_every_versions):
                 ctx.stop.wait(2.0)
                 continue
-            policy.agent.load_weights(tensors_from_update(update))
-            follower.version = update.version
+            if not follower.adopt(update, policy.agent.load_weights):
+                continue  # did not fit the networks (counted by the follower)
             record = ctx.run_dir / "eval" if config.record_eval else None
             result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop)
             if result is None:

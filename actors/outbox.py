@@ -7,6 +7,7 @@ stores each (actor id, episode id) once, which turns at-least-once into exactly-
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 import time
@@ -34,6 +35,7 @@ class Outbox:
         )
         self._pending: OrderedDict[int, tuple[bytes, float]] = OrderedDict()
         self._cond = threading.Condition()
+        self._sn = itertools.count()  # source sequence numbers: the replay binds our id to this session
         self.counters = {"sent": 0, "acked": 0, "duplicates": 0, "rejected": 0, "resent": 0, "dropped": 0,
                          "bad_acks": 0}
         self._subscriber = session.declare_subscriber(keys.acks(run_id, actor_id), self._on_ack)
@@ -44,18 +46,32 @@ class Outbox:
             return len(self._pending)
 
     def send(self, episode: Episode) -> None:
-        """Publish ``episode`` and keep it until acknowledged. Waits (bounded) when the outbox is full."""
+        """Publish ``episode`` and keep it until acknowledged. Waits (bounded) when the outbox is full.
+
+        While it waits it keeps resending what is due: after a replay or router restart the
+        full outbox is exactly what must be resent, or no ack would ever make room.
+        """
         payload = encode(episode)
+        deadline = time.monotonic() + self._wait
+        room = lambda: len(self._pending) < self._size  # noqa: E731
+        while True:
+            with self._cond:
+                left = deadline - time.monotonic()
+                if room() or left <= 0 or self._cond.wait_for(room, timeout=min(left, max(0.1, self._resend_after / 2))):
+                    break
+            self.resend_due()
         with self._cond:
-            if len(self._pending) >= self._size:
-                self._cond.wait_for(lambda: len(self._pending) < self._size, timeout=self._wait)
             while len(self._pending) >= self._size:
                 dropped, _ = self._pending.popitem(last=False)
                 self.counters["dropped"] += 1
                 log.warning("outbox full for %.0f s: dropped episode %d unacknowledged", self._wait, dropped)
             self._pending[episode.episode_id] = (payload, time.monotonic())
-        self._publisher.put(payload)
+        self._put(payload)
         self.counters["sent"] += 1
+
+    def _put(self, payload: bytes) -> None:
+        """Publish with source info, so the replay can tell this session from one claiming our id."""
+        self._publisher.put(payload, source_info=zenoh.SourceInfo(self._publisher.id, next(self._sn)))
 
     def resend_due(self) -> int:
         """Resend every episode unacknowledged for longer than ``resend_after_s``; returns how many."""
@@ -65,16 +81,20 @@ class Outbox:
             for eid, payload in due:
                 self._pending[eid] = (payload, now)
         for _, payload in due:
-            self._publisher.put(payload)
+            self._put(payload)
         self.counters["resent"] += len(due)
         return len(due)
 
-    def flush(self, timeout_s: float) -> bool:
-        """Wait until every episode is acknowledged (resending as due); True if the outbox emptied."""
+    def flush(self, timeout_s: float, stop: threading.Event | None = None) -> bool:
+        """Wait until every episode is acknowledged (resending as due); True if the outbox emptied.
+
+        Gives up early once ``stop`` is set, so a role told to stop stays inside the
+        launcher's grace period (what is unacknowledged then was never promised stored).
+        """
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not (stop is not None and stop.is_set()):
             with self._cond:
-                if self._cond.wait_for(lambda: not self._pending, timeout=min(1.0, self._resend_after)):
+                if self._cond.wait_for(lambda: not self._pending, timeout=min(0.5, self._resend_after)):
                     return True
             self.resend_due()
         return self.pending == 0

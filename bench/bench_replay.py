@@ -34,7 +34,7 @@ from protocol.fabric import FabricConfig, open_session  # noqa: E402
 from protocol.messages import Status, decode, encode  # noqa: E402
 from protocol.observation import CAMERA_NAMES  # noqa: E402
 from replay_server.checkpoint import load_checkpoint, write_checkpoint  # noqa: E402
-from replay_server.client import ReplayClient  # noqa: E402
+from protocol.sample_wire import ReplayClient  # noqa: E402
 from replay_server.config import ReplayConfig  # noqa: E402
 from replay_server.storage import EpisodeStore  # noqa: E402
 from replay_server.testing import synthetic_episode  # noqa: E402

@@ -13,29 +13,26 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import socket
 import sys
-import threading
-import time
 from pathlib import Path
 from typing import Optional, Sequence
 
 from deploy.config_loader import ConfigError, parse_override
-
-#: role -> default instance name (the entry points live in deploy/roles.py)
-DEFAULT_INSTANCE = {
-    "router": "router",
-    "replay": "replay",
-    "learner": "learner",
-    "actor": "actor-0",
-    "eval": "eval",
-    "demo_source": "demos",
-    "dashboard": "dashboard",
-}
-
-PARENT_ENV = "C2FARM_PARENT_PID"  # set by the launcher: a role stops when its launcher is gone
+from deploy.endpoints import free_port, loopback, wait_for_router
+from deploy.liveness import PARENT_ENV, start_beacon_from_env, watch_parent
 
 log = logging.getLogger("c2farm")
+
+#: one subcommand per role: its help line
+ROLE_HELP = {
+    "router": "run the Zenoh router (the hub every other role connects to)",
+    "replay": "run the replay server (stores episodes, serves batches to the learner)",
+    "learner": "run the learner (trains the Q-attention cascade, broadcasts weights)",
+    "actor": "run one actor (steps the PyBullet Panda task, sends episodes)",
+    "eval": "run the evaluator (greedy policy on fixed seeds, once per weights version)",
+    "demo_source": "publish the run's scripted demos to the replay (generating them if missing)",
+    "dashboard": "run the HTTP dashboard (GET /, /api/status, /healthz, /metrics)",
+}
 
 DESCRIPTION = """\
 C2F-ARM (coarse-to-fine Q-attention) as a distributed actor-learner service.
@@ -110,7 +107,11 @@ def _common(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--log-level", default="INFO", help="Python log level (default: %(default)s)")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
+    """The ``c2farm`` parser. ``demo_options=False`` leaves out the ``demos`` options, whose
+    import pulls in the simulator: a role process (the router, the dashboard) starts faster."""
+    from deploy.config import DEFAULT_INSTANCE  # imports every role's config, torch included
+
     parser = argparse.ArgumentParser(
         prog="c2farm", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -142,16 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--dashboard-port", type=int, metavar="PORT", help="dashboard port (dashboard.port; 0 picks a free one)"
     )
 
-    helps = {
-        "router": "run the Zenoh router (the hub every other role connects to)",
-        "replay": "run the replay server (stores episodes, serves batches to the learner)",
-        "learner": "run the learner (trains the Q-attention cascade, broadcasts weights)",
-        "actor": "run one actor (steps the PyBullet Panda task, sends episodes)",
-        "eval": "run the evaluator (greedy policy on fixed seeds, once per weights version)",
-        "demo_source": "publish the run's scripted demos to the replay (generating them if missing)",
-        "dashboard": "run the HTTP dashboard (GET /, /api/status, /healthz, /metrics)",
-    }
-    for role, text in helps.items():
+    for role, text in ROLE_HELP.items():
         p = sub.add_parser(role, help=text, description=text[0].upper() + text[1:] + ".")
         _common(p)
         p.add_argument(
@@ -163,15 +155,16 @@ def build_parser() -> argparse.ArgumentParser:
         if role == "dashboard":
             p.add_argument("--host", metavar="HOST", help="bind address (dashboard.host, default 127.0.0.1)")
             p.add_argument("--port", type=int, metavar="PORT", help="HTTP port (dashboard.port, default 8080)")
-    from actors.demos.cli import add_arguments
-
     p = sub.add_parser(
         "demos",
         help="write scripted demonstrations of a task as MCAP files",
         description="Run a task's scripted waypoints through the control agent and record every "
         "control step as one MCAP file per episode (opens in Foxglove).",
     )
-    add_arguments(p)
+    if demo_options:
+        from actors.demos.cli import add_arguments
+
+        add_arguments(p)
     return parser
 
 
@@ -195,7 +188,7 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
     if listen:
         put("fabric", "listen", listen)
         if not args.connect:
-            put("fabric", "connect", [_loopback(e) for e in listen])
+            put("fabric", "connect", [loopback(e) for e in listen])
     put("fabric", "connect", args.connect)
     put("launch", "num_actors", getattr(args, "actors", None))
     roles = getattr(args, "roles", None)
@@ -208,63 +201,7 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
     return [out] + [parse_override(text) for text in args.overrides]
 
 
-def _loopback(endpoint: str) -> str:
-    for wildcard in ("0.0.0.0", "[::]"):
-        endpoint = endpoint.replace(f"/{wildcard}:", "/127.0.0.1:")
-    return endpoint
-
-
-def free_port() -> int:
-    """A TCP port that was free a moment ago on 127.0.0.1."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 # -- running a role ----------------------------------------------------------------------
-
-
-def tcp_endpoints(endpoints: Sequence[str]) -> list[tuple[str, int]]:
-    """``tcp/HOST:PORT`` endpoints as (host, port); other protocols are skipped."""
-    out = []
-    for endpoint in endpoints:
-        proto, _, address = endpoint.partition("/")
-        address = address.split("#", 1)[0].split("?", 1)[0]
-        if proto != "tcp" or ":" not in address:
-            continue
-        host, _, port = address.rpartition(":")
-        try:
-            out.append((host.strip("[]"), int(port)))
-        except ValueError:
-            continue
-    return out
-
-
-def wait_for_router(endpoints: Sequence[str], timeout_s: float, stop: threading.Event) -> bool:
-    """Poll until one router endpoint accepts a TCP connection (True) or time runs out."""
-    targets = tcp_endpoints(endpoints)
-    if not targets:
-        return True
-    deadline = time.monotonic() + timeout_s
-    while True:
-        for host, port in targets:
-            try:
-                with socket.create_connection((host, port), timeout=1.0):
-                    return True
-            except OSError:
-                pass
-        if time.monotonic() >= deadline or stop.wait(0.1):
-            return False
-
-
-def _watch_parent(parent_pid: int, stop: threading.Event) -> None:
-    def loop() -> None:
-        while not stop.wait(0.5):
-            if os.getppid() != parent_pid:
-                log.warning("launcher (pid %d) is gone; stopping", parent_pid)
-                stop.set()
-
-    threading.Thread(target=loop, name="watch-parent", daemon=True).start()
 
 
 def run_role(role: str, config, instance: str) -> int:
@@ -281,7 +218,7 @@ def run_role(role: str, config, instance: str) -> int:
     )
     stop_on_signals(ctx.stop)
     if os.environ.get(PARENT_ENV):
-        _watch_parent(int(os.environ[PARENT_ENV]), ctx.stop)
+        watch_parent(int(os.environ[PARENT_ENV]), ctx.stop)
     if role != "router" and not wait_for_router(config.fabric.connect, config.launch.router_wait_s, ctx.stop):
         if ctx.stop.is_set():
             return 0
@@ -299,7 +236,9 @@ def run_role(role: str, config, instance: str) -> int:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    args = build_parser().parse_args(argv)
+    start_beacon_from_env()  # a role started by the launcher: its liveness check counts from now
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(demo_options=not argv or argv[0] not in ROLE_HELP).parse_args(argv)
     if args.command == "demos":
         from actors.demos.cli import run
 
@@ -354,5 +293,23 @@ def _unique_run_id(cfg_mod, runs_dir: Path) -> str:
     return run_id
 
 
+def exit_now(code: int) -> None:
+    """Flush, then end the process without interpreter teardown.
+
+    Everything a role owns (sessions, sockets, checkpoints, logs) is closed by the time its
+    entry point returns; what is left is tearing down torch and Zenoh's modules, which took
+    0.5 s idle and several seconds on a busy 2-core machine: time the launcher's 10 s stop
+    cannot spare. Only for ``python -m deploy.cli`` (the launcher's children, and the launcher
+    itself there), never for a caller that imported ``main``.
+    """
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_now(main())

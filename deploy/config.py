@@ -39,6 +39,16 @@ DEFAULT_PRESET = "cpu-small"
 ROLES = ("router", "replay", "dashboard", "learner", "demo_source", "actor", "eval")
 #: Roles that finish their job and exit; restarted only when they fail.
 ONE_SHOT_ROLES = ("demo_source",)
+#: role -> the instance name a role process gets unless told otherwise.
+DEFAULT_INSTANCE = {
+    "router": "router",
+    "replay": "replay",
+    "learner": "learner",
+    "actor": "actor-0",
+    "eval": "eval",
+    "demo_source": "demos",
+    "dashboard": "dashboard",
+}
 
 
 @dataclass
@@ -61,14 +71,16 @@ class LaunchConfig:
     roles: list[str] = field(default_factory=lambda: list(ROLES))  #: roles started here (others run elsewhere)
     num_actors: int = 2  #: actor processes to start
     instance_prefix: str = ""  #: prepended to the instance names started here, e.g. "box3-" (unique per machine)
-    restart: list[str] = field(  #: roles restarted when their process dies (one-shot roles only on failure)
-        default_factory=lambda: ["replay", "learner", "demo_source", "actor", "eval"]
+    restart: list[str] = field(  #: roles restarted when their process dies or goes silent (one-shot roles only on failure)
+        default_factory=lambda: list(ROLES)
     )
     progress_every_s: float = 30.0  #: print a progress line (updates, env steps, eval success) this often; 0 = never
-    restart_backoff_s: float = 1.0  #: wait before the first restart of an instance; doubles each time
-    restart_backoff_max_s: float = 30.0  #: ceiling of the restart wait
+    restart_backoff_s: float = 1.0  #: wait before restarting an instance; doubles per quick failure in a row
+    restart_backoff_max_s: float = 30.0  #: ceiling of the restart wait; an instance that ran this long starts the doubling afresh
     max_restarts: int = 20  #: restarts per instance before the launcher gives up on it
-    shutdown_grace_s: float = 8.0  #: after SIGTERM, wait this long before SIGKILL (total stop < 10 s)
+    liveness_timeout_s: float = 15.0  #: a role whose beacon (runs/<id>/heartbeats/) is silent this long is killed and restarted; 0 = never
+    liveness_grace_s: float = 60.0  #: a just-started role is not judged silent for this long (slow imports on a busy machine)
+    shutdown_grace_s: float = 8.0  #: one deadline for the whole stop: SIGTERM all, SIGKILL what is left after it (stop < 10 s)
     router_wait_s: float = 20.0  #: how long roles wait for the Zenoh router to accept connections
 
     def __post_init__(self) -> None:
@@ -81,6 +93,8 @@ class LaunchConfig:
             raise ValueError("restart settings must be >= 0")
         if not 0 < self.shutdown_grace_s <= 60:
             raise ValueError("shutdown_grace_s must be in (0, 60]")
+        if self.liveness_timeout_s < 0 or self.liveness_grace_s < 0:
+            raise ValueError("liveness_timeout_s and liveness_grace_s must be >= 0")
 
 
 @dataclass

@@ -3,14 +3,20 @@
 - Each role runs ``python -m deploy.cli <role> --config runs/<run-id>/config.yaml``: a fresh
   interpreter (fork+exec, never a fork of a process holding a Zenoh session), in its own
   process group so a terminal's Ctrl-C reaches only the launcher, which then stops the
-  roles in order.
+  roles.
 - Output of every child is streamed with a prefix (``[actor-1] ...``) and also appended to
   ``runs/<run-id>/logs/<instance>.log``.
 - The router starts first; the others start once it accepts connections.
-- A dead role listed in ``launch.restart`` (actors, by default) is restarted with a
-  doubling backoff, at most ``launch.max_restarts`` times.
-- SIGINT/SIGTERM: SIGTERM to every role (the router last), SIGKILL to whatever is left
-  after ``launch.shutdown_grace_s``; the launcher returns only when no child remains.
+- A role listed in ``launch.restart`` (every role, by default) that dies is restarted under
+  the same name, the router on the same endpoint: every client session redials it and
+  Zenoh re-declares their subscriptions and tokens, so the run carries on. The wait doubles
+  per quick failure in a row, at most ``launch.max_restarts`` restarts per instance.
+- A role alive as a process but silent (its beacon file, see ``deploy/liveness.py``, unchanged
+  for ``launch.liveness_timeout_s``: SIGSTOPped, hung) is SIGKILLed, then restarted as above.
+- SIGINT/SIGTERM: SIGTERM to every role at once (the router once they are gone, since it
+  carries their last acks and statuses), SIGKILL to whatever is left at one deadline,
+  ``launch.shutdown_grace_s`` after the start of the stop; the launcher returns once every
+  child has exited (or, stuck in the kernel, been SIGKILLed), under 10 s in all.
 """
 
 from __future__ import annotations
@@ -25,9 +31,9 @@ import time
 from dataclasses import dataclass, field
 from typing import IO, Optional
 
-from deploy.cli import PARENT_ENV, tcp_endpoints, wait_for_router
-from deploy.config import ONE_SHOT_ROLES, ROLES, RunConfig
-from deploy.cli import DEFAULT_INSTANCE
+from deploy.config import DEFAULT_INSTANCE, ONE_SHOT_ROLES, ROLES, RunConfig
+from deploy.endpoints import tcp_endpoints, wait_for_router
+from deploy.liveness import BEACON_ENV, PARENT_ENV, BeaconWatch, beacon_path
 
 
 @dataclass
@@ -38,8 +44,12 @@ class Child:
     instance: str
     proc: Optional[subprocess.Popen] = None
     restarts: int = 0  #: restarts done so far
+    quick_failures: int = 0  #: exits in a row soon after starting (the backoff exponent)
+    started_at: float = 0.0  #: monotonic time of the last start
     restart_at: Optional[float] = None  #: monotonic time of a scheduled restart
     done: bool = False  #: exited and will not be restarted
+    killed_silent: bool = False  #: the launcher killed it for a silent beacon
+    beacon: Optional[BeaconWatch] = field(default=None, repr=False)
     reader: Optional[threading.Thread] = field(default=None, repr=False)
 
     @property
@@ -48,6 +58,8 @@ class Child:
 
 
 class Launcher:
+    """Starts, watches, restarts and stops the roles of one run on this machine."""
+
     def __init__(self, config: RunConfig, out: IO[str] = sys.stdout):
         self.config = config
         self.run_dir = config.run_dir
@@ -55,6 +67,7 @@ class Launcher:
         self._out_lock = threading.Lock()
         self.stop = threading.Event()
         self._signals = 0
+        self._progress_thread: Optional[threading.Thread] = None
         self.children: list[Child] = []
         launch = config.launch
         for role in ROLES:
@@ -101,7 +114,11 @@ class Launcher:
 
     def start(self, child: Child) -> None:
         (self.run_dir / "logs").mkdir(parents=True, exist_ok=True)
-        env = dict(os.environ, PYTHONUNBUFFERED="1", **{PARENT_ENV: str(os.getpid())})
+        if child.beacon is None:
+            child.beacon = BeaconWatch(beacon_path(self.run_dir, child.instance))
+        child.beacon.reset()
+        env = dict(os.environ, PYTHONUNBUFFERED="1",
+                   **{PARENT_ENV: str(os.getpid()), BEACON_ENV: str(child.beacon.path)})
         proc = subprocess.Popen(
             self.command(child),
             stdin=subprocess.DEVNULL,
@@ -113,7 +130,8 @@ class Launcher:
             env=env,
             start_new_session=True,  # own process group: killpg reaches its helpers too
         )
-        child.proc, child.restart_at = proc, None
+        child.proc, child.restart_at, child.killed_silent = proc, None, False
+        child.started_at = time.monotonic()
         child.reader = threading.Thread(target=self._pump, args=(child, proc), daemon=True)
         child.reader.start()
         self.say(f"started {child.instance} (pid {proc.pid})")
@@ -195,11 +213,15 @@ class Launcher:
     def _supervise(self) -> int:
         launch = self.config.launch
         next_progress = time.monotonic() + launch.progress_every_s
+        next_liveness = time.monotonic()
         while not self.stop.wait(0.2):
             now = time.monotonic()
             if launch.progress_every_s > 0 and now >= next_progress and "dashboard" in launch.roles:
                 next_progress = now + launch.progress_every_s
-                self._progress()
+                self._progress_soon()
+            if launch.liveness_timeout_s > 0 and now >= next_liveness:
+                next_liveness = now + 1.0
+                self._kill_silent()
             for child in self.children:
                 if child.done:
                     continue
@@ -210,25 +232,59 @@ class Launcher:
                     continue
                 if child.alive:
                     continue
-                code = child.proc.returncode
-                if child.role in ONE_SHOT_ROLES and code == 0:
-                    child.done = True
-                    self.say(f"{child.instance} finished its job")
-                elif child.role in launch.restart and child.restarts < launch.max_restarts:
-                    delay = min(launch.restart_backoff_s * 2**child.restarts, launch.restart_backoff_max_s)
-                    child.restart_at = now + delay
-                    self.say(
-                        f"{child.instance} exited with code {code}; restart "
-                        f"{child.restarts + 1}/{launch.max_restarts} in {delay:.1f} s"
-                    )
-                else:
-                    child.done = True
-                    why = "restart limit reached" if child.role in launch.restart else "not restarted"
-                    self.say(f"{child.instance} exited with code {code} ({why})")
+                self._on_exit(child, now)
             if self.children and all(c.done for c in self.children if c.role not in ONE_SHOT_ROLES):
                 self.say("every role has exited")
                 return 1
         return 0
+
+    def _on_exit(self, child: Child, now: float) -> None:
+        """A child's process ended: finished, restart it (with backoff), or give up on it."""
+        launch = self.config.launch
+        code = child.proc.returncode
+        how = " (killed: silent)" if child.killed_silent else ""
+        if child.role in ONE_SHOT_ROLES and code == 0:
+            child.done = True
+            self.say(f"{child.instance} finished its job")
+        elif child.role in launch.restart and child.restarts < launch.max_restarts:
+            if now - child.started_at >= launch.restart_backoff_max_s:
+                child.quick_failures = 0  # it ran a good while: no penalty from older failures
+            delay = min(launch.restart_backoff_s * 2**child.quick_failures, launch.restart_backoff_max_s)
+            child.quick_failures += 1
+            child.restart_at = now + delay
+            self.say(
+                f"{child.instance} exited with code {code}{how}; restart "
+                f"{child.restarts + 1}/{launch.max_restarts} in {delay:.1f} s"
+            )
+        else:
+            child.done = True
+            why = "restart limit reached" if child.role in launch.restart else "not restarted"
+            self.say(f"{child.instance} exited with code {code}{how} ({why})")
+
+    def _kill_silent(self) -> None:
+        """SIGKILL every running child whose beacon has been silent too long (hung, stopped).
+
+        Not during a child's first ``liveness_grace_s``: a starting role may hold the GIL
+        for long stretches (loading torch on a busy machine), which would look like silence.
+        """
+        launch = self.config.launch
+        now = time.monotonic()
+        for child in self.children:
+            if not child.alive or child.killed_silent or child.beacon is None:
+                continue
+            silent = child.beacon.silent_for()
+            if silent > launch.liveness_timeout_s and now - child.started_at > launch.liveness_grace_s:
+                what = "silent" if child.beacon.seen else "never beat"
+                self.say(f"{child.instance} (pid {child.proc.pid}) {what} for {silent:.0f} s "
+                         "(hung or stopped); killing it")
+                child.killed_silent = True
+                self._kill(child, signal.SIGKILL)
+
+    def _progress_soon(self) -> None:
+        """Print progress from a thread: a hung dashboard must not stall supervision."""
+        if self._progress_thread is None or not self._progress_thread.is_alive():
+            self._progress_thread = threading.Thread(target=self._progress, name="progress", daemon=True)
+            self._progress_thread.start()
 
     def _progress(self) -> None:
         """One console line from the dashboard's summary: updates, env steps, replay, eval."""
@@ -237,7 +293,7 @@ class Launcher:
         logging.getLogger("httpx").setLevel(logging.WARNING)
         url = f"http://{self.config.dashboard.host}:{self.config.dashboard.port}/api/status"
         try:
-            summary = httpx.get(url, timeout=2.0).json().get("summary", {})
+            summary = httpx.get(url, timeout=10.0).json().get("summary", {})  # a busy machine answers slowly
         except (httpx.HTTPError, ValueError):
             return
         parts = [f"{key.replace('_', ' ')} {value:g}" if isinstance(value, (int, float)) else f"{key} {value}"
@@ -246,43 +302,53 @@ class Launcher:
             self.say("progress: " + ", ".join(parts))
 
     def _shutdown(self) -> None:
-        """SIGTERM all (router last), SIGKILL after the grace period, reap everything."""
+        """SIGTERM every role, the router once they are gone; SIGKILL all left at the deadline.
+
+        One deadline for the whole stop (``shutdown_grace_s``), not one per role or phase, so
+        the total stays below it plus the moment SIGKILL takes to land.
+        """
         if not any(c.alive for c in self.children):
-            self._join_readers()
+            self._join_readers(time.monotonic() + 2.0)
             return
         self.say("stopping all roles")
+        started = time.monotonic()
         grace = self.config.launch.shutdown_grace_s
-        deadline = time.monotonic() + grace
-        others = [c for c in self.children if c.role != "router"]
+        deadline = started + grace
         routers = [c for c in self.children if c.role == "router"]
+        others = [c for c in self.children if c.role != "router"]
         for child in others:
             self._kill(child, signal.SIGTERM)
-        self._wait(others, time.monotonic() + grace * 0.6)
+        # The router carries the others' last acks and "stopped" statuses; it stops in well
+        # under a second, so it keeps a fifth of the grace (at most 1 s) for itself.
+        self._wait(others, deadline - min(1.0, grace / 5))
         for child in routers:
             self._kill(child, signal.SIGTERM)
         self._wait(self.children, deadline)
         for child in self.children:
             if child.alive:
-                self.say(f"{child.instance} did not stop within {grace:.0f} s; killing it")
+                self.say(f"{child.instance} did not stop within {grace:g} s; killing it")
                 self._kill(child, signal.SIGKILL)  # the whole process group, helpers included
+        # SIGKILL lands at once unless a process sits in the kernel (a large fsync); wait for
+        # that only as long as keeps the whole stop under 10 s: it dies anyway, unattended.
+        reap_by = max(time.monotonic(), deadline) + max(0.5, 9.5 - grace)
         for child in self.children:
             if child.proc is not None:
                 try:
-                    child.proc.wait(timeout=5)
+                    child.proc.wait(timeout=max(0.0, reap_by - time.monotonic()))
                 except subprocess.TimeoutExpired:
-                    self.say(f"{child.instance} (pid {child.proc.pid}) would not die")
-        self._join_readers()
-        self.say("all roles stopped")
+                    self.say(f"{child.instance} (pid {child.proc.pid}) is still dying after SIGKILL")
+        self._join_readers(reap_by + 0.2)
+        self.say(f"all roles stopped in {time.monotonic() - started:.1f} s")
 
     @staticmethod
     def _wait(children: list[Child], deadline: float) -> None:
         while any(c.alive for c in children) and time.monotonic() < deadline:
-            time.sleep(0.05)
+            time.sleep(0.02)
 
-    def _join_readers(self) -> None:
+    def _join_readers(self, deadline: float) -> None:
         for child in self.children:
             if child.reader is not None:
-                child.reader.join(timeout=2)
+                child.reader.join(timeout=max(0.0, deadline - time.monotonic()))
 
 
 def launch(config: RunConfig) -> int:

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
+import tempfile
 from pathlib import Path
 from typing import Callable
 
-from deploy.config import RunConfig
+from deploy.config import DEFAULT_INSTANCE, RunConfig
 from protocol.role import RoleContext
 
 log = logging.getLogger("c2farm")
@@ -84,8 +86,15 @@ def demo_source(config: RunConfig, ctx: RoleContext) -> int:
     have = len(list(directory.glob("*.mcap"))) if directory.is_dir() else 0
     if have < config.demos.episodes:
         log.info("generating %d demos of %s in %s", config.demos.episodes, config.sim.task, directory)
-        generate_demos(config.sim.task, config.demos.episodes, seed=config.demos.seed, out_dir=directory,
-                       cameras=tuple(config.sim.cameras), image_size=config.sim.image_size, progress=False)
+        # Written aside and moved in only when complete: a demo source killed mid-write must
+        # not leave a truncated file that every later start would count as a demo.
+        directory.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix=".partial-", dir=directory.parent) as partial:
+            generate_demos(config.sim.task, config.demos.episodes, seed=config.demos.seed, out_dir=partial,
+                           cameras=tuple(config.sim.cameras), image_size=config.sim.image_size, progress=False)
+            directory.mkdir(parents=True, exist_ok=True)
+            for path in sorted(Path(partial).glob("*.mcap")):
+                os.replace(path, directory / path.name)
     return run(directory, config.actor, ctx, every_n=config.demos.every_n, limit=config.demos.episodes,
                depths=config.qattention.depths)
 
@@ -98,11 +107,14 @@ def dashboard(config: RunConfig, ctx: RoleContext) -> int:
 
 #: role -> (entry point, default instance name)
 ROLES: dict[str, tuple[Callable[[RunConfig, RoleContext], int], str]] = {
-    "router": (router, "router"),
-    "replay": (replay, "replay"),
-    "learner": (learner, "learner"),
-    "actor": (actor, "actor-0"),
-    "eval": (evaluator, "eval"),
-    "demo_source": (demo_source, "demos"),
-    "dashboard": (dashboard, "dashboard"),
+    role: (entry, DEFAULT_INSTANCE[role])
+    for role, entry in (
+        ("router", router),
+        ("replay", replay),
+        ("learner", learner),
+        ("actor", actor),
+        ("eval", evaluator),
+        ("demo_source", demo_source),
+        ("dashboard", dashboard),
+    )
 }

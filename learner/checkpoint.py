@@ -3,20 +3,32 @@
 A checkpoint is a directory ``step-<N>/`` holding ``tensors.safetensors``, ``state.json``
 and a ``COMPLETE`` marker, written under a temporary name, fsynced and renamed, so a crash
 mid-write leaves the previous checkpoint intact and the half-written one ignored.
+
+Non-finite numbers never go into a checkpoint or come out of one: :func:`save_checkpoint`
+refuses such a state (:class:`NonFiniteState`, previous checkpoints kept), and
+:func:`load_latest` passes over a checkpoint that holds them (or cannot be read) for the
+previous complete one, so a poisoned state cannot survive a restart.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 from pathlib import Path
 from typing import Any
 
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 MARKER = "COMPLETE"
+log = logging.getLogger(__name__)
+
+
+class NonFiniteState(ValueError):
+    """A state holding NaN or inf: checkpointing it would make resuming useless."""
 
 
 def flatten_state(state: Any, prefix: str = "") -> tuple[dict[str, torch.Tensor], Any]:
@@ -58,16 +70,26 @@ def unflatten_state(tensors: dict[str, torch.Tensor], skeleton: Any) -> Any:
 
 
 def save_checkpoint(root: Path, step: int, state: Any, keep: int = 2) -> Path:
-    """Write ``state`` atomically as ``root/step-<step>`` and prune all but the newest ``keep``."""
+    """Write ``state`` atomically as ``root/step-<step>`` and prune all but the newest ``keep``.
+
+    Raises :class:`NonFiniteState` (writing nothing) when a tensor or float holds NaN or inf.
+    """
     root = Path(root)
+    tensors, skeleton = flatten_state(state)
+    bad = nonfinite_tensors(tensors)
+    if bad:
+        raise NonFiniteState(f"non-finite values in {len(bad)} tensors, e.g. {bad[0]}: checkpoint {step} not written")
+    try:
+        skeleton_json = json.dumps(skeleton, allow_nan=False)
+    except ValueError:
+        raise NonFiniteState(f"a non-finite float in the state: checkpoint {step} not written") from None
     root.mkdir(parents=True, exist_ok=True)
     final = root / f"step-{step:09d}"
     tmp = root / f".tmp-step-{step:09d}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
-    tensors, skeleton = flatten_state(state)
     save_file(tensors, str(tmp / "tensors.safetensors"))
-    (tmp / "state.json").write_text(json.dumps(skeleton))
+    (tmp / "state.json").write_text(skeleton_json)
     (tmp / MARKER).write_text(str(step))
     for path in tmp.iterdir():
         _fsync(path)
@@ -79,6 +101,11 @@ def save_checkpoint(root: Path, step: int, state: Any, keep: int = 2) -> Path:
     return final
 
 
+def nonfinite_tensors(tensors: dict[str, torch.Tensor]) -> list[str]:
+    """Names of the floating-point tensors that hold NaN or inf."""
+    return [name for name, t in tensors.items() if t.is_floating_point() and not bool(torch.isfinite(t).all())]
+
+
 def complete_checkpoints(root: Path) -> list[Path]:
     """Checkpoint directories that finished writing, oldest first."""
     root = Path(root)
@@ -88,13 +115,29 @@ def complete_checkpoints(root: Path) -> list[Path]:
 
 
 def load_latest(root: Path, device: str | torch.device = "cpu") -> Any | None:
-    """The newest complete checkpoint's state, or None when there is none."""
-    done = complete_checkpoints(root)
-    if not done:
-        return None
-    latest = done[-1]
-    tensors = load_file(str(latest / "tensors.safetensors"), device=str(device))
-    return unflatten_state(tensors, json.loads((latest / "state.json").read_text()))
+    """The state of the newest complete checkpoint that reads back whole and finite, or None.
+
+    A checkpoint that fails (unreadable, or NaN/inf inside, e.g. written before this check
+    existed) is logged and skipped for the one before it.
+    """
+    for path in reversed(complete_checkpoints(root)):
+        try:
+            tensors = load_file(str(path / "tensors.safetensors"), device=str(device))
+            skeleton = json.loads((path / "state.json").read_text(), parse_constant=_no_nonfinite)
+            state = unflatten_state(tensors, skeleton)
+        except (OSError, ValueError, KeyError, TypeError, SafetensorError) as exc:
+            log.error("skipping unreadable checkpoint %s: %s", path.name, exc)
+            continue
+        bad = nonfinite_tensors(tensors)
+        if bad:
+            log.error("skipping checkpoint %s: non-finite values in %d tensors, e.g. %s", path.name, len(bad), bad[0])
+            continue
+        return state
+    return None
+
+
+def _no_nonfinite(name: str):
+    raise ValueError(f"state.json holds {name}")
 
 
 def _fsync(path: Path) -> None:

@@ -2,6 +2,12 @@
 
 Everything algorithmic lives in ``qattention``; this file only moves data between the
 replay server (ZeroMQ), the agent and the fabric (Zenoh), and keeps the run resumable.
+
+Nothing non-finite gets through: a batch with NaN/inf outside its point clouds is not
+trained on (batch_guard.py), an update whose loss or gradients are non-finite is skipped
+(``C2FARM.update``), and non-finite weights are neither published nor checkpointed. Each
+is counted in ``health`` (status counters and the metrics CSV). Weights versions are never
+reused, across restarts too (versions.py).
 """
 
 from __future__ import annotations
@@ -11,13 +17,16 @@ import logging
 import random
 import time
 from dataclasses import asdict
+from typing import Callable
 
 import numpy as np
 import torch
 
-from learner.checkpoint import load_latest, save_checkpoint
+from learner.batch_guard import nonfinite_rows
+from learner.checkpoint import NonFiniteState, load_latest, save_checkpoint
 from learner.config import LearnerConfig
 from learner.metrics import MetricsLog
+from learner.versions import PublishedVersion
 from learner.weights import WeightsPublisher
 from protocol.episode import EXTRA_PREFIX
 from protocol.fabric import open_session
@@ -27,7 +36,7 @@ from qattention.agent import C2FARM
 from qattention.batch import TransitionBatch
 from qattention.config import QAttentionConfig
 from qattention.digest import network_digest
-from replay_server.client import ReplayClient, ReplayError, ReplayTimeout
+from protocol.sample_wire import ReplayClient, ReplayError, ReplayTimeout
 
 log = logging.getLogger("learner")
 
@@ -55,9 +64,17 @@ class Learner:
         self.samples = 0  #: transitions consumed
         self.env_steps = 0  #: transitions the replay had received, as of the last batch (learning curves)
         self.checkpoint_dir = ctx.run_dir / "checkpoints" / "learner"
+        self.published = PublishedVersion(ctx.run_dir / "learner" / "published_version")
+        #: what was kept out of training: non-finite updates skipped, poisoned batches rejected,
+        #: non-finite weight snapshots not published, non-finite states not checkpointed
+        self.health = {"skipped_updates": 0, "rejected_batches": 0, "weights_refused": 0, "checkpoints_refused": 0}
         self._last_metrics: dict[str, float] = {}
         self._rates = {"updates_per_s": 0.0, "samples_per_s": 0.0}
         self.restore()
+        sent = self.published.read()
+        if sent > self.version:
+            log.info("weights versions up to %d were published after the checkpoint; continuing above them", sent)
+            self.version = sent
 
     # -- persistence -----------------------------------------------------------------
     def state(self) -> dict:
@@ -67,6 +84,7 @@ class Learner:
             "version": self.version,
             "samples": self.samples,
             "env_steps": self.env_steps,
+            "health": dict(self.health),
             "torch_rng": torch.get_rng_state(),
             "numpy_rng": json.dumps(self.rng.bit_generator.state),
             "python_rng": json.dumps(random.getstate()),
@@ -81,6 +99,7 @@ class Learner:
         self.agent.load_state_dict(state["agent"])
         self.step, self.version, self.samples = state["step"], state["version"], state["samples"]
         self.env_steps = state.get("env_steps", 0)
+        self.health.update(state.get("health", {}))
         torch.set_rng_state(state["torch_rng"])
         self.rng.bit_generator.state = json.loads(state["numpy_rng"])
         python_state = json.loads(state["python_rng"])
@@ -88,26 +107,73 @@ class Learner:
         log.info("resumed from checkpoint at step %d, weights version %d", self.step, self.version)
         return True
 
-    def checkpoint(self) -> None:
+    def checkpoint(self) -> bool:
+        """Write a checkpoint; False (counted, previous ones kept) when the state is non-finite."""
         t0 = time.perf_counter()
-        path = save_checkpoint(self.checkpoint_dir, self.step, self.state(), keep=self.config.checkpoint_keep)
+        try:
+            path = save_checkpoint(self.checkpoint_dir, self.step, self.state(), keep=self.config.checkpoint_keep)
+        except NonFiniteState as exc:
+            self.health["checkpoints_refused"] += 1
+            log.error("%s; the previous checkpoint stays the latest", exc)
+            return False
         log.info("checkpoint %s in %.2f s", path.name, time.perf_counter() - t0)
+        return True
+
+    def publish(self, publisher: WeightsPublisher, announce: Callable[[], None] = lambda: None) -> bool:
+        """Broadcast the current weights as the next version; False when refused (non-finite, counted).
+
+        The order is the point: the version is recorded on disk first (a restart never reuses
+        it), then ``announce``-d in the heartbeat (actors take only versions the learner has
+        announced, actors/weights.py), then sent.
+        """
+        version = self.version + 1
+        payload = publisher.encode(self.agent.weights(), version, self.step, self.env_steps)
+        if payload is None:
+            self.health["weights_refused"] += 1
+            return False
+        self.published.record(version)
+        self.version = version
+        announce()
+        publisher.send(payload, version)
+        return True
 
     # -- one update ------------------------------------------------------------------
-    def train_step(self, arrays: dict[str, np.ndarray]) -> tuple[dict[str, float], np.ndarray]:
+    def train_step(self, arrays: dict[str, np.ndarray]) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+        """Train on one sampled batch; returns (metrics, rows, new priorities of those rows).
+
+        A batch with a non-finite value outside its point clouds is not trained on: it is
+        counted, and only its poisoned rows get a new priority, 0, so the replay rarely serves
+        them again; the other rows keep theirs. ``metrics`` is then empty.
+        """
         # Act-time labels travel as observation extras ("extra_voxel_indices", ...).
         arrays = {name.removeprefix(EXTRA_PREFIX): a for name, a in arrays.items()}
+        poisoned, bad = nonfinite_rows(arrays)
+        if poisoned:
+            self.health["rejected_batches"] += 1
+            if _worth_logging(self.health["rejected_batches"]):
+                log.warning("rejected batch %d: non-finite values in %s (%d of %d rows)",
+                            self.health["rejected_batches"], ", ".join(poisoned), bad.sum(), len(bad))
+            rows = np.flatnonzero(bad)
+            return {}, rows, np.zeros(len(rows), np.float32)
         batch = TransitionBatch.from_arrays(arrays, self.qconfig.cameras, self.device)
         metrics, priorities = self.agent.update(batch)
         self.step += 1
         self.samples += int(arrays["indices"].shape[0])
-        return metrics, priorities
+        if metrics["skipped_nonfinite"]:
+            self.health["skipped_updates"] += 1
+            if _worth_logging(self.health["skipped_updates"]):
+                log.warning("skipped update %d: non-finite loss or gradient (%d skipped so far)",
+                            self.step, self.health["skipped_updates"])
+        else:
+            self._last_metrics = metrics
+        return metrics, np.arange(len(priorities)), priorities
 
     def counters(self) -> dict[str, float]:
         return {
             "updates": self.step,
             "weights_version": self.version,
             "samples": self.samples,
+            **self.health,
             **self._rates,
             **{k: v for k, v in self._last_metrics.items() if k.startswith(("loss/", "q_chosen/"))},
         }
@@ -124,9 +190,9 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
     metrics_log = MetricsLog(ctx.run_dir / "metrics",
                              ctx.run_dir / "tensorboard" if config.tensorboard else None)
     # Actors may be waiting: publish what we have (fresh or resumed) before the first update.
-    learner.version += 1
-    publisher.publish(learner.agent.weights(), learner.version, learner.step, learner.env_steps)
+    learner.publish(publisher, heartbeat.publish)
     window_start, window_updates, window_samples = time.monotonic(), 0, 0
+    row_due = False  # a metrics row is written at the first applied update once due (never from a skipped one)
     try:
         while not ctx.stop.is_set():
             if config.max_updates and learner.step >= config.max_updates:
@@ -136,21 +202,26 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
             except (ReplayTimeout, ReplayError) as exc:
                 log.info("no batch yet (%s); asking again", exc)
                 continue
-            metrics, priorities = learner.train_step(batch.arrays)
-            client.update_priorities(batch.arrays["indices"], batch.arrays["keys"], priorities)
-            learner._last_metrics = metrics
+            metrics, rows, priorities = learner.train_step(batch.arrays)
+            if len(rows):
+                client.update_priorities(batch.arrays["indices"][rows], batch.arrays["keys"][rows], priorities)
+            if not metrics:
+                continue  # a rejected batch: no update happened
             window_updates += 1
             window_samples += int(batch.arrays["indices"].shape[0])
             learner.env_steps = int(batch.info.get("transitions_inserted", learner.env_steps))
             if learner.step % config.publish_every == 0:
-                learner.version += 1
-                publisher.publish(learner.agent.weights(), learner.version, learner.step, learner.env_steps)
-            if learner.step % config.log_every == 0:
+                learner.publish(publisher, heartbeat.publish)
+            row_due = row_due or learner.step % config.log_every == 0
+            if row_due and not metrics["skipped_nonfinite"]:
+                # Only applied updates make rows: the CSV header is fixed by the first one (metrics.py).
+                row_due = False
                 elapsed = time.monotonic() - window_start
                 learner._rates = {"updates_per_s": window_updates / elapsed, "samples_per_s": window_samples / elapsed}
                 window_start, window_updates, window_samples = time.monotonic(), 0, 0
-                metrics_log.write(learner.step, {**metrics, **learner._rates, "weights_version": learner.version,
-                                                 **{f"replay_{k}": v for k, v in batch.info.items()}})
+                applied = {k: v for k, v in metrics.items() if k != "skipped_nonfinite"}
+                metrics_log.write(learner.step, {**applied, **learner._rates, "weights_version": learner.version,
+                                                 **learner.health, **{f"replay_{k}": v for k, v in batch.info.items()}})
             if learner.step % config.checkpoint_every == 0:
                 learner.checkpoint()
     finally:
@@ -163,3 +234,8 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
         heartbeat.close()
         session.close()
     return 0
+
+
+def _worth_logging(count: int) -> bool:
+    """Log the first few of a repeated warning, then every 100th, so a flood cannot drown the log."""
+    return count <= 3 or count % 100 == 0

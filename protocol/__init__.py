@@ -6,6 +6,7 @@ This is the only package every role imports; it needs numpy, safetensors and zen
 from protocol.codec import PROTOCOL_VERSION, ProtocolError
 from protocol.episode import Episode, stack_observations
 from protocol.fabric import FabricConfig, open_session, zenoh_config
+from protocol.limits import DEFAULT_LIMITS, MAX_INT, Limits
 from protocol.messages import (
     AckStatus,
     EpisodeAck,
@@ -16,6 +17,7 @@ from protocol.messages import (
     WeightsUpdate,
     decode,
     encode,
+    validate,
 )
 from protocol.observation import ACTION_SIZE, CAMERA_NAMES, CameraFrame, Observation
 
@@ -24,9 +26,12 @@ __all__ = [
     "AckStatus",
     "CAMERA_NAMES",
     "CameraFrame",
+    "DEFAULT_LIMITS",
     "Episode",
     "EpisodeAck",
     "FabricConfig",
+    "Limits",
+    "MAX_INT",
     "Observation",
     "PROTOCOL_VERSION",
     "PriorityUpdate",
@@ -39,5 +44,6 @@ __all__ = [
     "encode",
     "open_session",
     "stack_observations",
+    "validate",
     "zenoh_config",
 ]

@@ -24,6 +24,7 @@ class FabricConfig:
     connect: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])  #: router endpoints clients dial
     listen: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])  #: endpoints the router listens on
     shared_memory: bool = True  #: Zenoh's same-host shared-memory transport (off measures the TCP path)
+    reconnect_max_ms: int = 1000  #: a client that lost its router redials at least this often (a restarted router is rejoined within about this)
 
 
 def zenoh_config(fabric: FabricConfig, mode: str = "client") -> zenoh.Config:
@@ -37,6 +38,15 @@ def zenoh_config(fabric: FabricConfig, mode: str = "client") -> zenoh.Config:
         config.insert_json5("listen/endpoints", json.dumps(list(fabric.listen)))
     else:
         config.insert_json5("connect/endpoints", json.dumps(list(fabric.connect)))
+        # Opening still fails fast without a router (the defaults); once connected, a client
+        # that loses its router (killed, restarted) redials forever, and Zenoh re-declares its
+        # subscribers, queryables and liveliness tokens on the new link. Zenoh's default
+        # backoff grows to 4 s; this caps it so a restarted router is rejoined within ~1 s.
+        period = max(100, int(fabric.reconnect_max_ms))
+        config.insert_json5(
+            "connect/retry",
+            json.dumps({"period_init_ms": min(250, period), "period_max_ms": period, "period_increase_factor": 2}),
+        )
     config.insert_json5("transport/shared_memory/enabled", json.dumps(bool(fabric.shared_memory)))
     return config
 

@@ -16,6 +16,7 @@ from typing import Callable
 import zenoh
 
 from protocol import keys
+from protocol.limits import DEFAULT_LIMITS as LIMITS
 from protocol.messages import Status, encode
 
 log = logging.getLogger(__name__)
@@ -58,8 +59,8 @@ class Heartbeat:
             host=socket.gethostname(),
             time=time.time(),
             state=self.state,
-            counters={k: float(v) for k, v in self._counters().items()},
-            info={k: str(v) for k, v in self._info().items()},
+            counters=_bounded({str(k)[: LIMITS.max_name]: float(v) for k, v in self._counters().items()}),
+            info=_bounded({str(k)[: LIMITS.max_name]: str(v)[: LIMITS.max_text] for k, v in self._info().items()}),
         )
 
     def publish(self) -> None:
@@ -81,3 +82,9 @@ class Heartbeat:
         self.publish()
         self._publisher.undeclare()
         self._token.undeclare()
+
+
+def _bounded(items: dict) -> dict:
+    """At most ``max_items`` entries, so a long error text or a growing counter set truncates
+    the heartbeat instead of getting it refused (and the role shown as silent)."""
+    return dict(list(items.items())[: LIMITS.max_items])

@@ -2,7 +2,10 @@
 
 ``encode(message) -> bytes`` and ``decode(data, expect=...) -> message``. Decoding checks the
 frame, the version, the kind and the schema, and raises :class:`ProtocolError` (naming the
-field at fault) for anything else; receivers count those and keep serving.
+field at fault) for anything else, never another exception; receivers count those and keep
+serving. The schema is strict: unknown or missing fields, ids outside the key-safe charset,
+integers outside 0..2**53-1, non-finite numbers (except point clouds and diagnostic
+counters) and anything beyond :class:`protocol.limits.Limits` are refused.
 """
 
 from __future__ import annotations
@@ -13,8 +16,23 @@ from typing import Union
 
 import numpy as np
 
-from protocol.codec import DEFAULT_MAX_BYTES, ProtocolError, decode_frame, encode_frame, require
-from protocol.episode import Episode, validate_episode
+from protocol import keys
+from protocol.codec import (
+    WIRE_DTYPES,
+    ProtocolError,
+    check_array_values,
+    check_float,
+    check_int,
+    check_keys,
+    check_map,
+    check_name,
+    check_text,
+    decode_frame,
+    encode_frame,
+    require,
+)
+from protocol.episode import Episode, is_point_cloud, validate_episode
+from protocol.limits import DEFAULT_LIMITS, Limits
 
 
 class Kind(enum.IntEnum):
@@ -102,10 +120,11 @@ class PriorityUpdate:
 Message = Union[Episode, EpisodeAck, WeightsUpdate, Status, SampleRequest, SampleBatch, PriorityUpdate]
 
 
-def encode(message: Message) -> bytes:
-    """Serialise any message (validating an episode first, so bad data never leaves)."""
+def encode(message: Message, limits: Limits = DEFAULT_LIMITS) -> bytes:
+    """Serialise any message after the checks ``decode`` applies, so what leaves decodes
+    (a sender finds its own bug, not every receiver). Raises :class:`ProtocolError`."""
+    validate(message, limits)
     if isinstance(message, Episode):
-        validate_episode(message)
         fields = {
             "actor_id": message.actor_id,
             "episode_id": message.episode_id,
@@ -150,138 +169,221 @@ def encode(message: Message) -> bytes:
     if isinstance(message, SampleBatch):
         fields = {"request_id": message.request_id, "error": message.error, "info": message.info}
         return encode_frame(Kind.SAMPLE_BATCH, fields, message.arrays)
-    if isinstance(message, PriorityUpdate):
-        arrays = {"indices": message.indices, "keys": message.keys, "priorities": message.priorities}
-        return encode_frame(Kind.PRIORITY_UPDATE, {}, arrays)
+    arrays = {"indices": message.indices, "keys": message.keys, "priorities": message.priorities}
+    return encode_frame(Kind.PRIORITY_UPDATE, {}, arrays)
+
+
+def decode(
+    data: bytes, expect: type | None = None, max_bytes: int | None = None, limits: Limits = DEFAULT_LIMITS
+) -> Message:
+    """Parse and validate one message; ``expect`` rejects a valid message of another kind.
+
+    Raises :class:`ProtocolError` and nothing else, whatever ``data`` holds. ``max_bytes``
+    (default ``limits.max_bytes``) bounds the message; ``limits`` carries the receiver's
+    other ceilings (steps, cameras, batch size, ...).
+    """
+    try:
+        kind, fields, arrays = decode_frame(data, max_bytes, limits)
+        try:
+            kind = Kind(kind)
+        except ValueError:
+            raise ProtocolError("frame.kind", f"unknown message kind {kind}") from None
+        cls, build = _DECODERS[kind]
+        if expect is not None and cls is not expect:
+            raise ProtocolError("frame.kind", f"expected {expect.__name__}, got {cls.__name__}")
+        message = build(fields, arrays, limits)
+        validate(message, limits)
+        return message
+    except ProtocolError:
+        raise
+    except Exception as exc:  # last resort: a receiver must only ever see ProtocolError
+        raise ProtocolError("message", f"cannot be decoded ({type(exc).__name__}: {str(exc)[:200]})") from None
+
+
+def validate(message: Message, limits: Limits = DEFAULT_LIMITS) -> None:
+    """Raise :class:`ProtocolError` naming the first field of ``message`` that breaks its schema."""
+    for cls, check in _VALIDATORS:
+        if isinstance(message, cls):
+            return check(message, limits)
     raise TypeError(f"not a protocol message: {type(message).__name__}")
 
 
-def decode(data: bytes, expect: type | None = None, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
-    """Parse and validate one message; ``expect`` rejects a valid message of another kind."""
-    kind, fields, arrays = decode_frame(data, max_bytes)
+# -- per-message schemas -------------------------------------------------------------------
+
+
+def _check_id(name: str, value) -> str:
+    if not keys.is_valid_id(value):
+        shown = repr(value[:80]) if isinstance(value, str) else type(value).__name__
+        raise ProtocolError(name, f"invalid id {shown}: use 1-{keys.MAX_ID_LENGTH} letters, digits, '_', '.', '-'")
+    return value
+
+
+def _no_arrays(arrays: dict) -> None:
+    if arrays:
+        raise ProtocolError(next(iter(arrays)), "unexpected array: this message carries none")
+
+
+def _check_arrays(name: str, arrays, limits: Limits, dtypes=WIRE_DTYPES, finite=lambda n: True) -> None:
+    """A dict of named arrays: count, names, dtypes, dimensions, and values (see check_array_values)."""
+    if not isinstance(arrays, dict):
+        raise ProtocolError(name, f"expected a dict of arrays, got {type(arrays).__name__}")
+    if len(arrays) > limits.max_arrays:
+        raise ProtocolError(name, f"{len(arrays)} arrays exceeds the limit of {limits.max_arrays}")
+    for key, array in arrays.items():
+        where = f"{name}.{check_name(key, name, limits)}"
+        if not isinstance(array, np.ndarray) or array.dtype not in dtypes:
+            got = getattr(array, "dtype", type(array).__name__)
+            raise ProtocolError(where, f"dtype {got}, expected one of {sorted(d.name for d in dtypes)}")
+        if array.ndim > limits.max_ndim:
+            raise ProtocolError(where, f"{array.ndim} dimensions exceeds the limit of {limits.max_ndim}")
+        check_array_values(where, array, finite=finite(key))
+
+
+_FLOAT_DTYPES = frozenset(d for d in WIRE_DTYPES if d.kind == "f")
+
+
+def _validate_ack(m: EpisodeAck, limits: Limits) -> None:
+    _check_id("actor_id", m.actor_id)
+    check_int("episode_id", m.episode_id)
     try:
-        kind = Kind(kind)
-    except ValueError:
-        raise ProtocolError("frame.kind", f"unknown message kind {kind}") from None
-    decoder = _DECODERS[kind]
-    if expect is not None and decoder[0] is not expect:
-        raise ProtocolError("frame.kind", f"expected {expect.__name__}, got {decoder[0].__name__}")
-    return decoder[1](fields, arrays)
+        AckStatus(m.status)
+    except (ValueError, TypeError):
+        raise ProtocolError("status", f"unknown ack status {m.status!r:.80}") from None
+    check_text("reason", m.reason, limits.max_text)
 
 
-def _decode_episode(fields, arrays) -> Episode:
-    steps = {k[len("step/") :]: v for k, v in arrays.items() if k.startswith("step/")}
-    for name in ("actions", "rewards", "terminals", "policy_versions"):
-        if name not in steps:
-            raise ProtocolError(name, "missing")
-    info = require(fields, "info", dict)
-    if not all(isinstance(k, str) and isinstance(v, str) for k, v in info.items()):
-        raise ProtocolError("info", "must map strings to strings")
-    episode = Episode(
-        actor_id=require(fields, "actor_id", str),
-        episode_id=require(fields, "episode_id", int),
-        task=require(fields, "task", str),
-        seed=require(fields, "seed", int),
-        is_demo=require(fields, "is_demo", bool),
-        success=require(fields, "success", bool),
-        timeout=require(fields, "timeout", bool),
-        observations={k[len("obs/") :]: v for k, v in arrays.items() if k.startswith("obs/")},
-        actions=steps["actions"],
-        rewards=steps["rewards"],
-        terminals=steps["terminals"],
-        policy_versions=steps["policy_versions"],
-        info=info,
-    )
+def _validate_weights(m: WeightsUpdate, limits: Limits) -> None:
+    check_int("version", m.version)
+    check_int("learner_step", m.learner_step)
+    check_int("env_steps", m.env_steps)
+    if m.config_digest != "":
+        _check_id("config_digest", m.config_digest)
+    check_float("published_at", m.published_at, lo=0.0)
+    # Weights are floating point and finite: one NaN would make every action NaN.
+    _check_arrays("tensors", m.tensors, limits, dtypes=_FLOAT_DTYPES)
+
+
+def _validate_status(m: Status, limits: Limits) -> None:
+    _check_id("role", m.role)
+    _check_id("instance", m.instance)
+    _check_id("run_id", m.run_id)
+    check_int("pid", m.pid, 0, 2**32)
+    check_text("host", m.host, 255)
+    check_float("time", m.time, lo=0.0)
+    _check_id("state", m.state)
+    # Counters may be NaN or infinite: a diverged loss is exactly what the dashboard must show
+    # (it renders them as null), and refusing the whole heartbeat would hide the role instead.
+    check_map("counters", m.counters, limits, "any-number")
+    check_map("info", m.info, limits, "text")
+
+
+def _validate_sample_request(m: SampleRequest, limits: Limits) -> None:
+    check_int("request_id", m.request_id)
+    check_int("batch_size", m.batch_size, 1, limits.max_batch)
+    check_int("timeout_ms", m.timeout_ms, 0, limits.max_timeout_ms)
+
+
+def _validate_sample_batch(m: SampleBatch, limits: Limits) -> None:
+    check_int("request_id", m.request_id)
+    check_text("error", m.error, limits.max_text)
+    check_map("info", m.info, limits, "any-number")  # diagnostics, logged, never trained on
+    _check_arrays("arrays", m.arrays, limits, finite=lambda name: not is_point_cloud(name))
+
+
+def _validate_priority_update(m: PriorityUpdate, limits: Limits) -> None:
+    for name, dtype in (("indices", "int64"), ("keys", "int64"), ("priorities", "float32")):
+        array = getattr(m, name)
+        if not isinstance(array, np.ndarray) or array.dtype != np.dtype(dtype) or array.ndim != 1:
+            got = f"{array.dtype}{list(array.shape)}" if isinstance(array, np.ndarray) else type(array).__name__
+            raise ProtocolError(name, f"expected a 1-D {dtype} array, got {got}")
+    if not m.indices.shape == m.keys.shape == m.priorities.shape:
+        raise ProtocolError("priorities", "indices, keys and priorities must have one length")
+    if m.priorities.shape[0] > limits.max_priorities:
+        raise ProtocolError("priorities", f"{m.priorities.shape[0]} entries exceeds the limit of {limits.max_priorities}")
+    if m.indices.size and (m.indices.min() < 0 or m.keys.min() < 0):
+        raise ProtocolError("indices", "indices and keys must be >= 0")
+    if not np.isfinite(m.priorities).all() or (m.priorities < 0).any():
+        raise ProtocolError("priorities", "must be finite and >= 0")
+
+
+_VALIDATORS = (
+    (Episode, validate_episode),
+    (EpisodeAck, _validate_ack),
+    (WeightsUpdate, _validate_weights),
+    (Status, _validate_status),
+    (SampleRequest, _validate_sample_request),
+    (SampleBatch, _validate_sample_batch),
+    (PriorityUpdate, _validate_priority_update),
+)
+
+
+# -- decoders: fields and arrays -> message (validated afterwards) ----------------------------
+
+_EPISODE_FIELDS = ("actor_id", "episode_id", "task", "seed", "is_demo", "success", "timeout", "info")
+_STEP_ARRAYS = ("actions", "rewards", "terminals", "policy_versions")
+
+
+def _decode_episode(fields, arrays, limits) -> Episode:
+    check_keys(fields, _EPISODE_FIELDS)
     unexpected = [k for k in arrays if not k.startswith(("obs/", "step/"))]
     if unexpected:
         raise ProtocolError(unexpected[0], "unknown array in an episode")
-    validate_episode(episode)
-    return episode
+    steps = {k[len("step/") :]: v for k, v in arrays.items() if k.startswith("step/")}
+    check_keys(steps, _STEP_ARRAYS, what="step/")
+    return Episode(
+        **{name: fields[name] for name in _EPISODE_FIELDS},
+        observations={k[len("obs/") :]: v for k, v in arrays.items() if k.startswith("obs/")},
+        **steps,
+    )
 
 
-def _decode_ack(fields, arrays) -> EpisodeAck:
+def _decode_ack(fields, arrays, limits) -> EpisodeAck:
+    check_keys(fields, ("actor_id", "episode_id", "status", "reason"))
+    _no_arrays(arrays)
     status = require(fields, "status", str)
     try:
         status = AckStatus(status)
     except ValueError:
-        raise ProtocolError("status", f"unknown ack status {status!r}") from None
-    return EpisodeAck(
-        actor_id=require(fields, "actor_id", str),
-        episode_id=require(fields, "episode_id", int),
-        status=status,
-        reason=require(fields, "reason", str),
-    )
+        raise ProtocolError("status", f"unknown ack status {status[:80]!r}") from None
+    return EpisodeAck(fields["actor_id"], fields["episode_id"], status, fields["reason"])
 
 
-def _decode_weights(fields, arrays) -> WeightsUpdate:
-    for name, array in arrays.items():
-        if array.dtype.kind != "f":
-            raise ProtocolError(f"tensors.{name}", f"dtype {array.dtype}; weights are floating point")
+def _decode_weights(fields, arrays, limits) -> WeightsUpdate:
+    check_keys(fields, ("version", "learner_step", "config_digest", "published_at", "env_steps"))
     return WeightsUpdate(
-        version=require(fields, "version", int),
-        learner_step=require(fields, "learner_step", int),
+        version=fields["version"],
+        learner_step=fields["learner_step"],
         tensors=arrays,
-        config_digest=require(fields, "config_digest", str),
-        published_at=float(require(fields, "published_at", (int, float))),
-        env_steps=require(fields, "env_steps", int),
+        config_digest=fields["config_digest"],
+        published_at=check_float("published_at", fields["published_at"], lo=0.0),
+        env_steps=fields["env_steps"],
     )
 
 
-def _decode_status(fields, arrays) -> Status:
-    counters = require(fields, "counters", dict)
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in counters.values()):
-        raise ProtocolError("counters", "values must be numbers")
-    info = require(fields, "info", dict)
-    if not all(isinstance(v, str) for v in info.values()):
-        raise ProtocolError("info", "values must be strings")
-    return Status(
-        role=require(fields, "role", str),
-        instance=require(fields, "instance", str),
-        run_id=require(fields, "run_id", str),
-        pid=require(fields, "pid", int),
-        host=require(fields, "host", str),
-        time=float(require(fields, "time", (int, float))),
-        state=require(fields, "state", str),
-        counters={k: float(v) for k, v in counters.items()},
-        info=info,
-    )
+def _decode_status(fields, arrays, limits) -> Status:
+    check_keys(fields, tuple(Status.__dataclass_fields__))
+    _no_arrays(arrays)
+    values = dict(fields)
+    values["time"] = check_float("time", fields["time"], lo=0.0)
+    values["counters"] = check_map("counters", fields["counters"], limits, "any-number")
+    return Status(**values)
 
 
-def _decode_sample_request(fields, arrays) -> SampleRequest:
-    request = SampleRequest(
-        request_id=require(fields, "request_id", int),
-        batch_size=require(fields, "batch_size", int),
-        timeout_ms=require(fields, "timeout_ms", int),
-    )
-    if not 1 <= request.batch_size <= 65536:
-        raise ProtocolError("batch_size", f"{request.batch_size} is outside 1..65536")
-    if request.timeout_ms < 0:
-        raise ProtocolError("timeout_ms", "must be >= 0")
-    return request
+def _decode_sample_request(fields, arrays, limits) -> SampleRequest:
+    check_keys(fields, tuple(SampleRequest.__dataclass_fields__))
+    _no_arrays(arrays)
+    return SampleRequest(**fields)
 
 
-def _decode_sample_batch(fields, arrays) -> SampleBatch:
-    info = require(fields, "info", dict)
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in info.values()):
-        raise ProtocolError("info", "values must be numbers")
-    return SampleBatch(
-        request_id=require(fields, "request_id", int),
-        arrays=arrays,
-        error=require(fields, "error", str),
-        info={k: float(v) for k, v in info.items()},
-    )
+def _decode_sample_batch(fields, arrays, limits) -> SampleBatch:
+    check_keys(fields, ("request_id", "error", "info"))
+    info = check_map("info", fields["info"], limits, "any-number")
+    return SampleBatch(request_id=fields["request_id"], arrays=arrays, error=fields["error"], info=info)
 
 
-def _decode_priority_update(fields, arrays) -> PriorityUpdate:
-    for name, dtype in (("indices", "int64"), ("keys", "int64"), ("priorities", "float32")):
-        if name not in arrays:
-            raise ProtocolError(name, "missing")
-        if arrays[name].dtype.name != dtype or arrays[name].ndim != 1:
-            raise ProtocolError(name, f"expected a 1-D {dtype} array, got {arrays[name].dtype}{list(arrays[name].shape)}")
-    if not arrays["indices"].shape == arrays["keys"].shape == arrays["priorities"].shape:
-        raise ProtocolError("priorities", "indices, keys and priorities must have one length")
-    if not np.isfinite(arrays["priorities"]).all() or (arrays["priorities"] < 0).any():
-        raise ProtocolError("priorities", "must be finite and >= 0")
+def _decode_priority_update(fields, arrays, limits) -> PriorityUpdate:
+    check_keys(fields, ())
+    check_keys(arrays, ("indices", "keys", "priorities"))
     return PriorityUpdate(arrays["indices"], arrays["keys"], arrays["priorities"])
 
 

@@ -43,7 +43,8 @@ class C2FARM:
             torch.optim.Adam(n.parameters(), lr=config.lr, weight_decay=config.weight_decay) for n in self.nets
         ]
         self.generator = torch.Generator().manual_seed(seed)  # crop noise and exploration (CPU, then moved)
-        self.update_step = 0
+        self.update_step = 0  #: updates applied (skipped ones not counted)
+        self.skipped_nonfinite = 0  #: updates skipped for a non-finite loss or gradient (this process only)
 
     # ------------------------------------------------------------------ acting
     def _autocast(self):
@@ -93,7 +94,15 @@ class C2FARM:
         return idx, coords, torch.stack(bounds, 1), rot_grip
 
     def update(self, batch: TransitionBatch) -> tuple[dict[str, float], np.ndarray]:
-        """One gradient step per depth on the same batch; returns metrics and PER priorities [B]."""
+        """One gradient step per depth on the same batch; returns metrics and PER priorities [B].
+
+        All or nothing: every depth's loss and gradients are computed first (the depths share
+        no parameters, so this equals stepping them one after another). If any loss or any
+        gradient is non-finite, no optimiser steps and no target net moves, for any depth: the
+        update is skipped, counted (``metrics["skipped_nonfinite"] == 1`` and
+        ``self.skipped_nonfinite``) and ``update_step`` does not advance. Metrics then carry no
+        loss values (they would be NaN); priorities are always finite (``loss.priorities``).
+        """
         cfg = self.config
         self.nets.train()
         idx, coords, bounds, rot_grip = self.labels(batch)
@@ -116,8 +125,7 @@ class C2FARM:
                     centre = (b1[:, :3] + b1[:, 3:]) / 2
 
         prop = batch.obs.proprioception(cfg.episode_length)
-        metrics: dict[str, float] = {}
-        deltas = []
+        outs, targets = [], []
         for d in range(cfg.depths):
             y = td_target(batch.reward, batch.terminal, q_next[d], cfg)
             centre = coords[:, d - 1] if d > 0 else None
@@ -125,15 +133,25 @@ class C2FARM:
             with self._autocast():
                 q, rg = self.nets[d](grid, prop)
             out = depth_loss(q, rg, idx[:, d], rot_grip, y, batch.weights, cfg)
-            opt = self.optimisers[d]
-            opt.zero_grad(set_to_none=True)
+            self.optimisers[d].zero_grad(set_to_none=True)
             out.loss.backward()
+            outs.append(out)
+            targets.append(y)
+        prio = priorities([out.delta for out in outs], cfg.per_alpha).cpu().numpy().astype(np.float32)
+
+        if not self._all_finite(outs):
+            for opt in self.optimisers:
+                opt.zero_grad(set_to_none=True)
+            self.skipped_nonfinite += 1
+            return {"skipped_nonfinite": 1.0, "update_step": float(self.update_step)}, prio
+
+        metrics: dict[str, float] = {"skipped_nonfinite": 0.0}
+        for d, (out, y) in enumerate(zip(outs, targets)):
             torch.nn.utils.clip_grad_value_(self.nets[d].parameters(), cfg.grad_clip)
-            opt.step()
+            self.optimisers[d].step()
             with torch.no_grad():
                 for pt, po in zip(self.targets[d].parameters(), self.nets[d].parameters()):
                     pt.lerp_(po, cfg.tau)
-            deltas.append(out.delta)
             metrics[f"loss/depth{d}"] = out.loss.item()
             metrics[f"td/depth{d}"] = out.delta.mean().item()
             metrics[f"td_translation/depth{d}"] = out.td_heads[:, 0].mean().item()
@@ -145,8 +163,13 @@ class C2FARM:
             metrics[f"target/depth{d}"] = y.mean().item()
         self.update_step += 1
         metrics["update_step"] = float(self.update_step)
-        prio = priorities(deltas, cfg.per_alpha)
-        return metrics, prio.cpu().numpy().astype(np.float32)
+        return metrics, prio
+
+    def _all_finite(self, outs) -> bool:
+        """Every depth's loss and every gradient finite (checked before clipping, which would hide an inf)."""
+        checks = [torch.isfinite(out.loss) for out in outs]
+        checks += [torch.isfinite(p.grad).all() for p in self.nets.parameters() if p.grad is not None]
+        return bool(torch.stack(checks).all())
 
     # ------------------------------------------------------------- persistence
     def weights(self) -> dict[str, torch.Tensor]:
@@ -154,7 +177,23 @@ class C2FARM:
         return {f"net.{k}": t.detach().cpu().clone() for k, t in self.nets.state_dict().items()}
 
     def load_weights(self, weights: dict[str, torch.Tensor]) -> None:
-        self.nets.load_state_dict({k[4:]: t for k, t in weights.items() if k.startswith("net.")})
+        """Swap in online weights (``net.*``; other keys are ignored), all or nothing.
+
+        Names, shapes and finiteness are checked before anything is copied, because
+        ``load_state_dict`` copies the tensors that match before it raises on the rest.
+        Raises ValueError (naming the tensor) and leaves the networks untouched.
+        """
+        given = {k[4:]: t for k, t in weights.items() if k.startswith("net.")}
+        expected = self.nets.state_dict()
+        if given.keys() != expected.keys():
+            odd = sorted(given.keys() ^ expected.keys())
+            raise ValueError(f"weights do not fit these networks: {len(odd)} names differ, e.g. net.{odd[0]}")
+        for name, t in given.items():
+            if tuple(t.shape) != tuple(expected[name].shape):
+                raise ValueError(f"net.{name}: shape {list(t.shape)}, expected {list(expected[name].shape)}")
+            if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+                raise ValueError(f"net.{name}: non-finite values")
+        self.nets.load_state_dict(given)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Everything needed to resume bit-identically, as a flat dict of tensors."""

@@ -71,12 +71,16 @@ def priorities(deltas: list[torch.Tensor], alpha: float) -> torch.Tensor:
 
     Each depth's term is batch-normalised as in the reference, but depths are combined once
     (the reference counted depth 0 twice, spec §10.7); the mean keeps priorities in (0, 1].
+    Always finite: a row whose TD error is non-finite at any depth gets 0 (the replay floors it
+    at its epsilon, so a poisoned transition is rarely drawn again) and is left out of the
+    batch maxima, so it cannot spoil the other rows' priorities.
     """
+    finite = torch.stack([torch.isfinite(d) for d in deltas], 0).all(0)
     terms = []
     for delta in deltas:
-        p = torch.sqrt(delta + 1e-10)
+        p = torch.sqrt(torch.where(finite, delta, 0.0).clamp_min(0.0) + 1e-10)
         terms.append(p / p.max())
-    return torch.stack(terms, 0).mean(0) ** alpha
+    return torch.where(finite, torch.stack(terms, 0).mean(0) ** alpha, 0.0)
 
 
 def next_bounds(index: torch.Tensor, bounds: torch.Tensor, config, depth: int) -> torch.Tensor:

@@ -71,8 +71,32 @@ class ReplayConfig:
     wal_fsync: bool = True
     # Write-ahead-log size (bytes) that triggers an early checkpoint.
     wal_checkpoint_bytes: int = 2 * 1024**3
-    # Episode ids remembered per actor for duplicate detection (older ids count as duplicates).
+    # Episode ids remembered per actor for duplicate detection (by id and payload digest; older ids are not judged).
     dedup_window: int = 10_000
+    # Most actor ids whose dedup memory is kept (least recently stored forgotten first): bounds dedup memory.
+    dedup_max_actors: int = 1024
+    # Largest batch one sample request may ask for; larger ones get an error reply and are counted.
+    max_batch_size: int = 512
+    # Largest batch in bytes (estimated from the stored schema) one request may ask for; larger ones are refused.
+    max_batch_bytes: int = 1 << 30
+    # Most sample requests waiting on the rate limiter, in total; more get a retry-later error reply.
+    max_pending_requests: int = 1024
+    # Most sample requests waiting per client (ZeroMQ identity), so one client cannot take the whole queue.
+    max_pending_per_client: int = 64
+    # Largest sample-service message (request or priority update) in bytes; ZeroMQ disconnects a peer that sends more.
+    max_request_bytes: int = 16 * 1024**2
+    # Most steps (decisions) in one episode; longer episodes are rejected and counted.
+    max_episode_steps: int = 1000
+    # Most cameras in one episode; more are rejected and counted.
+    max_episode_cameras: int = 8
+    # Most episodes queued per sender (actor id of the key, or Zenoh source): beyond it its episodes are dropped unacked at once, so a flood cannot starve others.
+    ingest_sender_queue_size: int = 16
+    # Most bytes queued per sender (see ingest_sender_queue_size).
+    ingest_sender_queue_bytes: int = 256 * 1024**2
+    # Seconds an actor id stays bound to the Zenoh source (session id, when samples carry one) that last stored under it; claims from another source meanwhile are impersonation.
+    identity_bind_ttl_s: float = 60.0
+    # Seconds between two log lines about the same rejection reason (the rest are only counted).
+    reject_log_interval_s: float = 5.0
     # Seconds between periodic checkpoints; 0 disables periodic checkpoints.
     checkpoint_interval_s: float = 600.0
     # Number of complete checkpoints kept on disk.
@@ -95,6 +119,11 @@ class ReplayConfig:
         """Raise ValueError for a setting no replay can run with (also after ``apply_overrides``)."""
         if not 0.0 <= self.demo_fraction <= 1.0:
             raise ValueError(f"demo_fraction must be in [0, 1] (the demo share of each batch), got {self.demo_fraction}")
+        for name in ("max_batch_size", "max_batch_bytes", "max_pending_requests", "max_pending_per_client",
+                     "max_request_bytes", "max_episode_steps", "max_episode_cameras", "max_episode_bytes",
+                     "ingest_sender_queue_size", "ingest_sender_queue_bytes", "dedup_window", "dedup_max_actors"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
 
 def apply_overrides(config: ReplayConfig, items: list[str]) -> ReplayConfig:

@@ -17,11 +17,16 @@ item, from the combined tree.
 Large per-camera arrays (``*_rgb``, ``*_points``) can be compressed per frame (lz4/zstd),
 so sampling one transition decompresses exactly two frames per array.
 
+Dedup remembers, per actor, each stored episode id with its payload digest: an identical
+resend is a duplicate, another payload under the same id is not (so nobody can suppress an
+actor's episode by sending something else under its id first).
+
 Not thread-safe: the service guards a store with one lock. Stored arrays are never
 mutated after insertion, so a snapshot may hold references to them without copying.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import threading
 from collections import OrderedDict
@@ -36,6 +41,12 @@ from replay_server.sumtree import SumTree
 
 STEP_NAMES = ("actions", "rewards", "terminals", "policy_versions")
 COMPRESSIBLE_SUFFIXES = ("_rgb", "_points")
+MAX_DIGESTS_PER_ID = 4  #: distinct payloads remembered under one (actor, episode id)
+
+
+def payload_digest(raw) -> str:
+    """The dedup digest of an encoded episode: a resend is byte-identical, a forgery is not."""
+    return hashlib.sha256(raw).hexdigest()[:16]  # 64 bits: a forger needs a second preimage, not a birthday
 
 
 class FrameCodec:
@@ -124,7 +135,7 @@ class Snapshot:
     slot_key: np.ndarray  #: int64 [capacity]
     free: np.ndarray  #: int64 free-slot stack
     state: dict  #: scalars: next_key, next_serial, max_priority, counters
-    dedup: dict[str, list[int]]  #: actor -> remembered episode ids
+    dedup: dict[str, list]  #: actor -> [[episode id, [payload digests]], ...] ("" digest: id-only, old checkpoints)
     dedup_floor: dict[str, int]
     extra: dict = field(default_factory=dict)  #: filled by the service (rate limiter, rng, wal segment)
 
@@ -154,7 +165,8 @@ class EpisodeStore:
         self.next_serial = 0
         self.max_priority = float(config.initial_priority)
         self.bytes = 0
-        self.dedup: dict[str, set[int]] = {}
+        #: actor -> episode id -> payload digests stored under it; actors least recently stored first
+        self.dedup: OrderedDict[str, dict[int, tuple[str, ...]]] = OrderedDict()
         self.dedup_floor: dict[str, int] = {}
         self.counters = {
             "episodes_stored": 0,
@@ -192,19 +204,37 @@ class EpisodeStore:
             tree.set(slots[mask], values[mask])
 
     # ------------------------------------------------------------------ dedup
-    def is_duplicate(self, actor_id: str, episode_id: int) -> bool:
-        if episode_id < self.dedup_floor.get(actor_id, 0):
-            return True
-        return episode_id in self.dedup.get(actor_id, ())
+    def is_duplicate(self, actor_id: str, episode_id: int, digest: Optional[str] = None) -> bool:
+        """Already stored? With a payload ``digest`` (what the service passes) only an identical
+        payload is a duplicate, so nobody can suppress an actor's episode by sending another one
+        under its (actor, episode id) first; ids below the remembered window are then not judged.
+        Without a digest: by id alone, ids older than the window counting as stored."""
+        seen = self.dedup.get(actor_id, {})
+        if digest is None:
+            return episode_id < self.dedup_floor.get(actor_id, 0) or episode_id in seen
+        digests = seen.get(episode_id, ())
+        return digest in digests or "" in digests
 
-    def _remember(self, actor_id: str, episode_id: int) -> None:
-        seen = self.dedup.setdefault(actor_id, set())
-        seen.add(episode_id)
+    def is_id_conflict(self, actor_id: str, episode_id: int, digest: str) -> bool:
+        """Another payload was already stored under this (actor, episode id): impersonation or id reuse."""
+        digests = self.dedup.get(actor_id, {}).get(episode_id, ())
+        return bool(digests) and digest not in digests and "" not in digests
+
+    def _remember(self, actor_id: str, episode_id: int, digest: str = "") -> None:
+        seen = self.dedup.get(actor_id)
+        if seen is None:
+            seen = self.dedup[actor_id] = {}
+            while len(self.dedup) > max(1, int(self.config.dedup_max_actors)):
+                forgotten, _ = self.dedup.popitem(last=False)
+                self.dedup_floor.pop(forgotten, None)
+        else:
+            self.dedup.move_to_end(actor_id)
+        seen[episode_id] = (seen.get(episode_id, ()) + (digest,))[-MAX_DIGESTS_PER_ID:]
         window = max(1, int(self.config.dedup_window))
         if len(seen) > 2 * window:
             keep = sorted(seen)[-window:]
             self.dedup_floor[actor_id] = keep[0]
-            self.dedup[actor_id] = set(keep)
+            self.dedup[actor_id] = {e: seen[e] for e in keep}
 
     # ------------------------------------------------------------------ insert
     def _stored_dtype(self, name: str, array: np.ndarray) -> np.dtype:
@@ -264,8 +294,8 @@ class EpisodeStore:
             nbytes=nbytes,
         )
 
-    def insert(self, episode: Episode) -> StoredEpisode:
-        """Store a validated, non-duplicate episode that passed :meth:`check`."""
+    def insert(self, episode: Episode, digest: str = "") -> StoredEpisode:
+        """Store a validated, non-duplicate episode that passed :meth:`check` (``digest``: its payload's)."""
         reason = self.check(episode)
         if reason:
             raise ValueError(reason)
@@ -275,7 +305,7 @@ class EpisodeStore:
         self._add(stored)
         if self.schema is None:
             self.schema = self.episode_schema(episode)
-        self._remember(stored.actor_id, stored.episode_id)
+        self._remember(stored.actor_id, stored.episode_id, digest)
         self.counters["episodes_stored"] += 1
         self.counters["transitions_inserted"] += stored.num_steps
         return stored
@@ -443,7 +473,7 @@ class EpisodeStore:
                 "counters": dict(self.counters),
                 "capacity_transitions": self.capacity,
             },
-            dedup={a: sorted(s) for a, s in self.dedup.items()},
+            dedup={a: [[e, list(s[e])] for e in sorted(s)] for a, s in self.dedup.items()},
             dedup_floor=dict(self.dedup_floor),
         )
 
@@ -466,7 +496,18 @@ class EpisodeStore:
         self.next_serial = int(snap.state["next_serial"])
         self.max_priority = float(snap.state["max_priority"])
         self.counters.update({k: int(v) for k, v in snap.state["counters"].items()})
-        self.dedup = {a: set(ids) for a, ids in snap.dedup.items()}
+        self.dedup = OrderedDict((a, _dedup_entries(ids)) for a, ids in snap.dedup.items())
         self.dedup_floor = dict(snap.dedup_floor)
         if self.size != sum(ep.num_steps for ep in snap.episodes):
             raise ValueError("checkpoint free list does not match its episodes")
+
+
+def _dedup_entries(ids: list) -> dict[int, tuple[str, ...]]:
+    """A snapshot's dedup list for one actor: ``[[id, [digests]], ...]``, or plain ids (older checkpoints)."""
+    out: dict[int, tuple[str, ...]] = {}
+    for entry in ids:
+        if isinstance(entry, (list, tuple)):
+            out[int(entry[0])] = tuple(str(d) for d in entry[1])
+        else:
+            out[int(entry)] = ("",)
+    return out

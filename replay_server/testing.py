@@ -110,6 +110,7 @@ def run_actor(argv: list[str]) -> int:
     p.add_argument("--interval", type=float, default=0.0, help="seconds between new episodes")
     p.add_argument("--deadline", type=float, default=90.0)
     p.add_argument("--template", action="store_true", help="reuse one episode's arrays (fast; for benchmarks)")
+    p.add_argument("--source-info", action="store_true", help="attach Zenoh source info (publisher id) to every put")
     p.add_argument("--out", required=True)
     a = p.parse_args(argv)
 
@@ -136,6 +137,14 @@ def run_actor(argv: list[str]) -> int:
     pub = session.declare_publisher(
         keys.episodes(a.run_id, a.actor_id), congestion_control=zenoh.CongestionControl.BLOCK
     )
+    sequence = iter(range(1, 1 << 62))
+
+    def put(data: bytes) -> None:
+        if a.source_info:  # lets the replay bind this actor id to this session (replay_server.identity)
+            pub.put(data, source_info=zenoh.SourceInfo(pub.id, next(sequence)))
+        else:
+            pub.put(data)
+
     cams = tuple(CAMERA_NAMES[: a.cameras])
     todo = list(range(a.start_id, a.start_id + a.episodes))
     outbox: dict[int, tuple[bytes, float]] = {}
@@ -160,13 +169,13 @@ def run_actor(argv: list[str]) -> int:
         now = time.monotonic()
         for eid, (data, sent) in list(outbox.items()):
             if now - sent > a.ack_timeout:
-                pub.put(data)
+                put(data)
                 sends += 1
                 outbox[eid] = (data, now)
         while todo and len(outbox) < a.outbox:
             eid = todo.pop(0)
             data = make(eid)
-            pub.put(data)
+            put(data)
             sends += 1
             outbox[eid] = (data, time.monotonic())
             if a.interval:

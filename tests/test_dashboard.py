@@ -103,6 +103,27 @@ def test_http_endpoints(served_table):
     assert page.status_code == 200 and "api/status" in page.text and "run-1" in page.text
 
 
+def test_non_finite_counters_become_null_in_json_and_nan_in_prometheus(served_table):
+    table, client = served_table
+    nan, inf = float("nan"), float("inf")
+    table.on_token("learner", "learner", True)
+    table.on_status(status("learner", "learner", counters={"loss/depth0": nan, "weights_version": inf, "updates": 3}))
+    table.on_token("actor", "actor-0", True)
+    table.on_status(status("actor", "actor-0", counters={"weights_version": 2, "q": -inf}))
+
+    response = client.get("/api/status")
+    assert response.status_code == 200
+    body = response.json()
+    learner = next(r for r in body["roles"] if r["role"] == "learner")
+    assert learner["counters"] == {"loss/depth0": None, "weights_version": None, "updates": 3}
+    assert body["summary"]["weights_version"] is None and body["summary"]["policy_lag"] == {"actor-0": None}
+    assert client.get("/healthz").status_code == 200
+    metrics = client.get("/metrics").text
+    assert 'c2farm_loss_depth0{run="run-1",role="learner",instance="learner"} NaN' in metrics
+    assert 'c2farm_weights_version{run="run-1",role="learner",instance="learner"} +Inf' in metrics
+    assert 'c2farm_q{run="run-1",role="actor",instance="actor-0"} -Inf' in metrics
+
+
 def test_the_feed_sees_heartbeats_come_and_go_over_zenoh(router):
     table = RoleTable("run-1", gone_after_s=3.0)
     watcher = open_session(router)

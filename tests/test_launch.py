@@ -165,3 +165,90 @@ def _can_connect(endpoint: str) -> bool:
             return True
     except OSError:
         return False
+
+
+def test_every_role_is_restarted_by_default_the_router_and_dashboard_too():
+    from deploy.config import ROLES, LaunchConfig
+
+    assert set(LaunchConfig().restart) == set(ROLES)
+
+
+class _ScriptLauncher:
+    """A Launcher whose roles are tiny Python scripts (no torch, no Zenoh): supervision alone."""
+
+    @staticmethod
+    def make(tmp_path: Path, script: str, **launch):
+        from deploy.config import RunConfig
+        from deploy.launch import Launcher
+
+        config = RunConfig()
+        config.run.run_id, config.run.runs_dir = "tiny", str(tmp_path)
+        config.launch.roles = ["replay"]
+        for key, value in launch.items():
+            setattr(config.launch, key, value)
+        config.run_dir.mkdir(parents=True)
+
+        class Tiny(Launcher):
+            def command(self, child):
+                return [sys.executable, "-c", script]
+
+        out = _Lines()
+        return Tiny(config, out=out), out
+
+
+class _Lines:
+    def __init__(self):
+        self.lines: list[str] = []
+
+    def write(self, text: str) -> None:
+        self.lines.extend(l for l in text.splitlines() if l)
+
+    def flush(self) -> None:
+        pass
+
+    def has(self, text: str) -> bool:
+        return any(text in l for l in list(self.lines))
+
+
+BEATING = "from deploy.liveness import start_beacon_from_env; start_beacon_from_env(); import time; time.sleep(120)"
+
+
+def test_a_silent_role_is_killed_and_restarted(tmp_path: Path):
+    launcher, out = _ScriptLauncher.make(tmp_path, BEATING, liveness_timeout_s=1.0, liveness_grace_s=3.0,
+                                         restart_backoff_s=0.1)
+    child = launcher.children[0]
+    pids: list[int] = []
+
+    def inject() -> None:
+        try:
+            wait_for(lambda: child.alive and child.beacon.path.exists(), 60, "the role to beat")
+            pids.append(child.proc.pid)
+            os.kill(child.proc.pid, signal.SIGSTOP)
+            wait_for(lambda: child.alive and child.proc.pid != pids[0], 60, "a new process")
+            pids.append(child.proc.pid)
+        finally:
+            launcher.stop.set()
+
+    thread = threading.Thread(target=inject, daemon=True)
+    thread.start()
+    assert launcher.run() == 0  # signal handlers need the main thread, so the launcher runs here
+    thread.join(5)
+    assert len(pids) == 2, out.lines
+    assert out.has(f"replay (pid {pids[0]}) silent for") and out.has("(killed: silent); restart 1/")
+    assert out.has("all roles stopped in")
+    assert not child.alive
+
+
+def test_a_stop_kills_a_role_that_ignores_sigterm_at_the_deadline(tmp_path: Path):
+    stubborn = "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); time.sleep(120)"
+    launcher, out = _ScriptLauncher.make(tmp_path, stubborn, shutdown_grace_s=1.0)
+    child = launcher.children[0]
+
+    def stop_soon() -> None:
+        wait_for(lambda: out.has("[replay] up"), 30, "the role to start")
+        launcher.stop.set()
+
+    threading.Thread(target=stop_soon, daemon=True).start()
+    assert launcher.run() == 0
+    assert out.has("replay did not stop within 1 s; killing it") and out.has("all roles stopped in")
+    assert child.proc.returncode == -signal.SIGKILL

@@ -1,8 +1,10 @@
-"""Learner checkpoints: atomic, pickle-free, and a resumed state is exactly the saved one."""
+"""Learner checkpoints: atomic, pickle-free, never non-finite, and a resumed state is exactly the saved one."""
 
+import pytest
 import torch
+from safetensors.torch import save_file
 
-from learner.checkpoint import MARKER, complete_checkpoints, load_latest, save_checkpoint
+from learner.checkpoint import MARKER, NonFiniteState, complete_checkpoints, load_latest, save_checkpoint
 
 
 def _state(step: int) -> dict:
@@ -38,3 +40,22 @@ def test_only_complete_checkpoints_count_and_old_ones_are_pruned(tmp_path):
 
 def test_no_checkpoint_means_a_fresh_start(tmp_path):
     assert load_latest(tmp_path / "missing") is None
+
+
+def test_a_non_finite_state_is_refused_and_the_previous_checkpoint_kept(tmp_path):
+    save_checkpoint(tmp_path, 1, _state(1))
+    for poison in ({"x": torch.tensor([1.0, float("inf")])}, {"x": torch.ones(1), "loss": float("nan")}):
+        with pytest.raises(NonFiniteState):
+            save_checkpoint(tmp_path, 2, poison)
+    assert [p.name for p in complete_checkpoints(tmp_path)] == ["step-000000001"]
+    assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_a_poisoned_or_unreadable_checkpoint_is_skipped_for_the_previous_one(tmp_path):
+    save_checkpoint(tmp_path, 1, {"w": torch.ones(2), "step": 1}, keep=3)
+    poisoned = save_checkpoint(tmp_path, 2, {"w": torch.ones(2), "step": 2}, keep=3)
+    broken = save_checkpoint(tmp_path, 3, {"w": torch.ones(2), "step": 3}, keep=3)
+    # e.g. written before checkpoints were checked, or cut short by a failing disk
+    save_file({"w": torch.tensor([1.0, float("nan")])}, str(poisoned / "tensors.safetensors"))
+    (broken / "tensors.safetensors").write_bytes(b"not safetensors")
+    assert load_latest(tmp_path)["step"] == 1

@@ -15,13 +15,14 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
+import zenoh
 
 from protocol import keys
 from protocol.codec import PROTOCOL_VERSION
 from protocol.fabric import FabricConfig, open_session
 from protocol.messages import AckStatus, EpisodeAck, Status, decode, encode
 from replay_server.checkpoint import load_latest
-from replay_server.client import ReplayClient, ReplayTimeout
+from protocol.sample_wire import ReplayClient, ReplayTimeout
 from replay_server.testing import actor_tag, synthetic_episode
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -252,13 +253,14 @@ def test_malformed_messages_are_rejected_and_counted(harness, fabric):
                                "step/terminals": ep3.terminals, "step/policy_versions": ep3.policy_versions})
     status_msg = encode(Status("x", "y", fabric.run_id, 1, "h", 0.0))
     session = fabric.session
-    session.put(key, good)  # first valid episode fixes the schema
+    block = zenoh.CongestionControl.BLOCK  # as actors put: the default (DROP) may lose puts on a busy machine
+    session.put(key, good, congestion_control=block)  # first valid episode fixes the schema
     fabric.wait_status(lambda c: c["episodes_stored"] == 1)
     for payload in (b"garbage" * 10, good[: len(good) // 2], wrong_version, big, bad_shape, invalid,
                     status_msg, b"", os.urandom(5000)):
-        session.put(key, payload)
+        session.put(key, payload, congestion_control=block)
     c = fabric.wait_status(lambda c: c["rejected"] == 9)
-    session.put(key, encode(synthetic_episode("bad-actor", 4, size=SIZE)))
+    session.put(key, encode(synthetic_episode("bad-actor", 4, size=SIZE)), congestion_control=block)
     c = fabric.wait_status(lambda c: c["episodes_stored"] == 2)
     assert c["rejected"] == 9 and harness.server.poll() is None
     time.sleep(0.3)
@@ -302,9 +304,10 @@ def test_rate_limiter_times_out_cleanly_and_holds_the_ratio(harness, fabric):
 def test_served_batches_carry_the_demo_share(harness, fabric):
     harness.start_server("demo_fraction=0.25", "checkpoint_interval_s=0")
     key = keys.episodes(fabric.run_id, "source")
-    fabric.session.put(key, encode(synthetic_episode("source", 0, size=SIZE, is_demo=True)))
+    block = zenoh.CongestionControl.BLOCK  # as actors put: the default (DROP) may lose puts on a busy machine
+    fabric.session.put(key, encode(synthetic_episode("source", 0, size=SIZE, is_demo=True)), congestion_control=block)
     for eid in range(1, 8):
-        fabric.session.put(key, encode(synthetic_episode("source", eid, size=SIZE)))
+        fabric.session.put(key, encode(synthetic_episode("source", eid, size=SIZE)), congestion_control=block)
     c = fabric.wait_status(lambda c: c["episodes_stored"] == 8)
     assert (c["demo_transitions"], c["agent_transitions"]) == (10, 70)
     with ReplayClient(harness.zmq, batch_size=8, prefetch=1) as client:

@@ -156,6 +156,22 @@ def test_duplicates_and_schema_mismatch():
     assert store.check(synthetic_episode("b", 0, size=8)) == ""
 
 
+def test_dedup_is_by_payload_digest_and_bounded():
+    from replay_server.storage import _dedup_entries
+
+    store = make_store(dedup_max_actors=2)
+    store.insert(synthetic_episode("a", 0, size=8), "d1")
+    assert store.is_duplicate("a", 0, "d1") and not store.is_duplicate("a", 0, "d2")
+    assert store.is_id_conflict("a", 0, "d2") and not store.is_id_conflict("a", 1, "d2")
+    store.insert(synthetic_episode("a", 0, size=8, timeout=True), "d2")  # another payload, same id: kept too
+    assert store.is_duplicate("a", 0, "d1") and store.is_duplicate("a", 0, "d2") and store.num_episodes == 2
+    assert _dedup_entries([3, [4, ["x"]]]) == {3: ("",), 4: ("x",)}  # older checkpoints held ids only
+    assert store.is_duplicate("a", 0) and not store.is_duplicate("a", 1)  # no digest: by id, as before
+    fill(store, 1, actor="b")
+    fill(store, 1, actor="c")  # the least recently stored actor's memory goes first
+    assert list(store.dedup) == ["b", "c"]
+
+
 def test_rate_limiter_holds_ratio():
     with pytest.raises(ValueError):
         RateLimiter(4.0, 10, 2.0)
@@ -419,7 +435,7 @@ def test_wal_replays_intact_records_and_stops_at_a_torn_tail(tmp_path):
 def test_batch_wire_roundtrip_and_malformed_frames():
     from protocol.codec import ProtocolError
     from protocol.messages import SampleBatch
-    from replay_server.wire import batch_frames, parse_batch
+    from protocol.sample_wire import batch_frames, parse_batch
 
     arrays = {"a": np.arange(12, dtype=np.float16).reshape(3, 4), "b": np.array([True, False]), "c": np.zeros((0, 2))}
     frames = [bytes(memoryview(f)) if isinstance(f, np.ndarray) else f for f in batch_frames(SampleBatch(7, arrays, "", {"x": 1.0}))]

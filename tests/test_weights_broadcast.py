@@ -38,8 +38,9 @@ def test_actor_gets_newest_version_and_late_joiner_queries_it():
         weights = {"net.w": torch.arange(6, dtype=torch.float32).reshape(2, 3)}
         for version in (1, 2, 3):
             publisher.publish({k: v * version for k, v in weights.items()}, version, learner_step=10 * version)
+        time.sleep(0.3)  # let the burst land: asked mid-burst, the follower would rightly offer what it had
         update = _wait(follower.newer)
-        assert update.version == 3  # only the newest is kept
+        assert update.version == 3  # of a burst, only the newest is offered
         assert torch.equal(tensors_from_update(update)["net.w"], weights["net.w"] * 3)
         follower.version = update.version
         assert follower.newer() is None  # nothing newer since
