@@ -174,7 +174,8 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
     session = open_session(ctx.fabric)
     follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
     policy = ActingPolicy(qconfig, follower)
-    outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s, config.outbox_wait_s)
+    outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s, config.outbox_wait_s,
+                    stop=ctx.stop)
     stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0, "reach_checks": 0, "reach_replaced": 0}
     # Episode ids must grow across restarts of this actor, or the replay would drop new episodes
     # as duplicates: start from the clock in milliseconds (an episode takes far longer than 1 ms).

@@ -68,7 +68,7 @@ def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10
         return 1
     session = open_session(ctx.fabric)
     outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s,
-                    config.outbox_wait_s)
+                    config.outbox_wait_s, stop=ctx.stop)
     published = {"demos": 0, "demo_episodes": 0}
     heartbeat = Heartbeat(session, ctx.run_id, "demos", ctx.instance,
                           counters=lambda: {**published, **outbox.counters, "outbox_pending": outbox.pending})

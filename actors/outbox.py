@@ -27,8 +27,9 @@ class Outbox:
     """Publishes episodes on ``episodes/<actor>`` and tracks acks on ``acks/<actor>``."""
 
     def __init__(self, session: zenoh.Session, run_id: str, actor_id: str, size: int = 16,
-                 resend_after_s: float = 10.0, wait_s: float = 30.0):
+                 resend_after_s: float = 10.0, wait_s: float = 30.0, stop: threading.Event | None = None):
         self.actor_id = actor_id
+        self._stop = stop  #: set when the role must stop: a full outbox then stops waiting for room
         self._size, self._resend_after, self._wait = size, resend_after_s, wait_s
         self._publisher = session.declare_publisher(
             keys.episodes(run_id, actor_id), congestion_control=zenoh.CongestionControl.BLOCK
@@ -59,15 +60,21 @@ class Outbox:
                 left = deadline - time.monotonic()
                 if room() or left <= 0 or self._cond.wait_for(room, timeout=min(left, max(0.1, self._resend_after / 2))):
                     break
+            if self._stopping:
+                break  # keep it without dropping another: the role exits within its grace period
             self.resend_due()
         with self._cond:
-            while len(self._pending) >= self._size:
+            while len(self._pending) >= self._size and not self._stopping:
                 dropped, _ = self._pending.popitem(last=False)
                 self.counters["dropped"] += 1
                 log.warning("outbox full for %.0f s: dropped episode %d unacknowledged", self._wait, dropped)
             self._pending[episode.episode_id] = (payload, time.monotonic())
         self._put(payload)
         self.counters["sent"] += 1
+
+    @property
+    def _stopping(self) -> bool:
+        return self._stop is not None and self._stop.is_set()
 
     def _put(self, payload: bytes) -> None:
         """Publish with source info, so the replay can tell this session from one claiming our id."""

@@ -291,9 +291,13 @@ def summarise(curves: Mapping[str, Curve], combined: Curve, thresholds: Sequence
 
 
 def stop(proc: subprocess.Popen) -> None:
-    """Ctrl-C the launcher's process group (it stops every role within 10 s), then insist."""
+    """SIGTERM the launcher's process group (it stops every role within 10 s), then insist.
+
+    SIGTERM, not SIGINT: a bench started in the background (``nohup ... &``) inherits an
+    ignored SIGINT, and then nothing would stop.
+    """
     try:
-        os.killpg(proc.pid, signal.SIGINT)
+        os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=60)
     except ProcessLookupError:
         pass

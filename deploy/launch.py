@@ -293,8 +293,8 @@ class Launcher:
         logging.getLogger("httpx").setLevel(logging.WARNING)
         url = f"http://{self.config.dashboard.host}:{self.config.dashboard.port}/api/status"
         try:
-            summary = httpx.get(url, timeout=10.0).json().get("summary", {})  # a busy machine answers slowly
-        except (httpx.HTTPError, ValueError):
+            summary = httpx.get(url, timeout=10.0).json().get("summary") or {}  # a busy machine answers slowly
+        except (httpx.HTTPError, ValueError, AttributeError):
             return
         parts = [f"{key.replace('_', ' ')} {value:g}" if isinstance(value, (int, float)) else f"{key} {value}"
                  for key, value in summary.items() if value is not None and key != "policy_lag"]

@@ -223,3 +223,26 @@ def test_a_full_outbox_keeps_resending_while_it_waits_for_room():
         subscriber.undeclare()
         for session in (actor, replay, router):
             session.close()
+
+
+def test_a_full_outbox_stops_waiting_when_its_role_is_told_to_stop():
+    """Nobody acks (the replay refuses a restarted actor's id for a while, or is down): a send
+    on a full outbox waited ``outbox_wait_s`` (30 s), past the launcher's grace, and got the
+    actor SIGKILLed on a clean stop (measured by bench/bench_reliability.py)."""
+    endpoint = f"tcp/127.0.0.1:{get_free_port()}"
+    fabric = FabricConfig(connect=[endpoint], listen=[endpoint])
+    router = open_session(fabric, "router")
+    actor = open_session(fabric)
+    stop = threading.Event()
+    outbox = Outbox(actor, "ob", "actor-0", size=1, resend_after_s=0.3, wait_s=60.0, stop=stop)
+    try:
+        outbox.send(make_episode(steps=2, side=8, episode_id=0))
+        threading.Timer(0.5, stop.set).start()
+        t0 = time.monotonic()
+        outbox.send(make_episode(steps=2, side=8, episode_id=1))  # full: waits until stop
+        assert time.monotonic() - t0 < 30  # correctness bound: far below wait_s
+        assert outbox.counters["dropped"] == 0 and outbox.pending == 2
+    finally:
+        outbox.close()
+        actor.close()
+        router.close()
