@@ -93,8 +93,8 @@ class ReplayConfig:
     ingest_sender_queue_size: int = 16
     # Most bytes queued per sender (see ingest_sender_queue_size).
     ingest_sender_queue_bytes: int = 256 * 1024**2
-    # Seconds an actor id stays bound to the Zenoh source (session id, when samples carry one) that last stored under it; claims from another source meanwhile are impersonation.
-    identity_bind_ttl_s: float = 60.0
+    # Seconds an actor id stays bound to the Zenoh source (session id, when samples carry one) that last stored under it; claims from another source meanwhile are impersonation. Short, because a restarted actor (a new session, back in 7-11 s) is locked out until it expires.
+    identity_bind_ttl_s: float = 15.0
     # Seconds between two log lines about the same rejection reason (the rest are only counted).
     reject_log_interval_s: float = 5.0
     # Seconds between periodic checkpoints; 0 disables periodic checkpoints.
