@@ -27,6 +27,16 @@ from protocol.fabric import FabricConfig, open_session
 
 REPO = Path(__file__).resolve().parent.parent
 
+#: `c2farm launch` overrides for a run that trains in seconds: tiny networks and batches.
+TINY_TRAINING = [
+    "--set", "replay.min_size_to_sample=8",
+    "--set", "learner.batch_size=2",
+    "--set", "learner.publish_every=2",
+    "--set", "learner.checkpoint_every=3",
+    "--set", "qattention.kernels=8",
+    "--set", "qattention.head_width=16",
+]
+
 
 def get_free_port() -> int:
     """A TCP port that was free a moment ago (bind port 0 and read what the kernel chose)."""

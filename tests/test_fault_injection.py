@@ -22,7 +22,7 @@ import psutil
 import pytest
 
 from actors.outbox import Outbox
-from conftest import REPO, Descendants, get_free_port, kill_launcher, make_episode, survivors, wait_for
+from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, make_episode, survivors, wait_for
 from protocol import keys
 from protocol.fabric import FabricConfig, open_session
 from protocol.episode import Episode
@@ -39,12 +39,7 @@ SMALL_RUN = [
     "--set", "launch.roles=[router,replay,dashboard,learner,actor]",
     "--set", "sim.image_size=64",
     "--set", "demos.episodes=0",
-    "--set", "replay.min_size_to_sample=8",
-    "--set", "learner.batch_size=2",
-    "--set", "learner.publish_every=2",
-    "--set", "learner.checkpoint_every=3",
-    "--set", "qattention.kernels=8",
-    "--set", "qattention.head_width=16",
+    *TINY_TRAINING,
     "--set", "actor.resend_after_s=2",  # resend soon after the replay or the router comes back
     "--set", "launch.restart_backoff_s=0.5",
     "--set", "launch.progress_every_s=0",

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import httpx
 
-from conftest import REPO, Descendants, get_free_port, kill_launcher, stop_launcher, wait_for
+from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, stop_launcher, wait_for
 from learner.checkpoint import complete_checkpoints
 
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
@@ -25,12 +25,7 @@ SMALL_RUN = [
     "--task", "reach_target", "--actors", "1",
     "--set", "sim.image_size=64",
     "--set", "demos.episodes=2",
-    "--set", "replay.min_size_to_sample=8",
-    "--set", "learner.batch_size=2",
-    "--set", "learner.publish_every=2",
-    "--set", "learner.checkpoint_every=3",
-    "--set", "qattention.kernels=8",
-    "--set", "qattention.head_width=16",
+    *TINY_TRAINING,
     "--set", "actor.eval_episodes=1",
     "--set", "actor.eval_every_versions=3",
     "--set", "actor.record_eval=false",
