@@ -4,6 +4,11 @@ A NaN or inf in any array that feeds the update (rewards, poses, camera matrices
 weights, labels, ...) would make the loss and then every weight NaN. Point clouds are the
 exception: invalid depth is normal for a real camera, and voxelisation drops non-finite
 points, so ``*_points`` arrays may hold them. Integer and bool arrays are always finite.
+
+Act-time labels are indices into this learner's own Q maps. The wire only knows they are
+non-negative (it does not know the network), so the learner checks them against its voxel
+grid, depth count and rotation bins: an index past the end would make the gather in the
+loss raise (on CPU) or abort the device (on CUDA) instead of skipping one row.
 """
 
 from __future__ import annotations
@@ -30,4 +35,39 @@ def nonfinite_rows(arrays: dict[str, np.ndarray]) -> tuple[list[str], np.ndarray
             rows |= ~finite.reshape(b, -1).all(1)
         else:  # not per-row: every row is suspect
             rows[:] = True
+    return names, rows
+
+
+def label_out_of_range_rows(arrays: dict[str, np.ndarray], voxel_size: int, depths: int,
+                            rotation_bins: int) -> tuple[list[str], np.ndarray]:
+    """(names of bad label arrays, bool [B] rows whose act-time labels do not fit the network).
+
+    ``voxel_indices`` [B, D, 3] must have D == ``depths`` and entries < ``voxel_size``;
+    ``rot_grip_indices`` [B, 4] three Euler bins < ``rotation_bins`` and a gripper bin < 2;
+    ``attention_coordinates`` [B, D, 3] the same D. Missing labels are fine (recomputed).
+    """
+    b = len(arrays["indices"])
+    rows = np.zeros(b, bool)
+    names = []
+    limits = {
+        "voxel_indices": (3, np.full(3, voxel_size)),
+        "attention_coordinates": (3, None),
+        "rot_grip_indices": (4, np.array([rotation_bins] * 3 + [2])),
+    }
+    for name, (width, upper) in limits.items():
+        a = arrays.get(name)
+        if a is None:
+            continue
+        per_depth = name != "rot_grip_indices"
+        shape_ok = a.shape == ((b, depths, width) if per_depth else (b, width))
+        if not shape_ok:
+            names.append(name)
+            rows[:] = True
+            continue
+        if upper is None:
+            continue
+        bad = ((a < 0) | (a >= upper)).reshape(b, -1).any(1)
+        if bad.any():
+            names.append(name)
+            rows |= bad
     return names, rows

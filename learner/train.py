@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from learner.batch_guard import nonfinite_rows
+from learner.batch_guard import label_out_of_range_rows, nonfinite_rows
 from learner.checkpoint import NonFiniteState, load_latest, save_checkpoint
 from learner.config import LearnerConfig
 from learner.metrics import MetricsLog
@@ -148,11 +148,16 @@ class Learner:
         # Act-time labels travel as observation extras ("extra_voxel_indices", ...).
         arrays = {name.removeprefix(EXTRA_PREFIX): a for name, a in arrays.items()}
         poisoned, bad = nonfinite_rows(arrays)
+        reason = "non-finite values"
+        if not poisoned:
+            poisoned, bad = label_out_of_range_rows(arrays, self.qconfig.voxel_size, self.qconfig.depths,
+                                                    self.qconfig.rotation_bins)
+            reason = "act-time labels out of range"
         if poisoned:
             self.health["rejected_batches"] += 1
             if _worth_logging(self.health["rejected_batches"]):
-                log.warning("rejected batch %d: non-finite values in %s (%d of %d rows)",
-                            self.health["rejected_batches"], ", ".join(poisoned), bad.sum(), len(bad))
+                log.warning("rejected batch %d: %s in %s (%d of %d rows)", self.health["rejected_batches"],
+                            reason, ", ".join(poisoned), bad.sum(), len(bad))
             rows = np.flatnonzero(bad)
             return {}, rows, np.zeros(len(rows), np.float32)
         batch = TransitionBatch.from_arrays(arrays, self.qconfig.cameras, self.device)

@@ -16,11 +16,11 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from .action_codec import bins_to_rotation
+from .action_codec import bins_to_rotation, rotation_to_bins
 from .batch import ObservationBatch
 from .crop import gather_points
 from .exploration import explore_rotation, explore_voxel
-from .reachability import ReachabilityTest, ranked_candidates
+from .reachability import ReachabilityTest, inside_workspace, ranked_candidates
 from .voxelise import child_bounds, unflatten_index, voxel_centre, voxelise
 
 QFunction = Callable[[torch.Tensor, torch.Tensor], tuple]
@@ -66,7 +66,7 @@ def descend(
     b, v = obs.size, config.voxel_size
     explore = explore and config.epsilon > 0
     proprio = obs.proprioception(config.episode_length)
-    bounds = obs.bounds(config.scene_bounds)
+    bounds = workspace = obs.bounds(config.scene_bounds)
     centre = None
     idxs, coords, all_bounds, qs = [], [], [], []
     for d in range(config.depths):
@@ -92,8 +92,10 @@ def descend(
     checks = replaced = None
     if reachable is not None and top_k > 1:
         checks, replaced = np.zeros(b, np.int64), np.zeros(b, bool)
+        held = rotation_to_bins(obs.gripper_pose[:, 3:7], config.rotation_resolution)
         for i in range(b):
-            checks[i], choice = _reachable_choice(action[i], q_trans[i], q_rot[i], bounds[i], config, reachable, top_k)
+            checks[i], choice = _reachable_choice(action[i], q_trans[i], q_rot[i], bounds[i], workspace[i], held[i],
+                                                  config, reachable, top_k)
             if choice is not None:
                 replaced[i] = True
                 idx[i], rot[i] = choice
@@ -113,17 +115,22 @@ def descend(
     )
 
 
-def _reachable_choice(action, q_trans, q_rot, bounds, config, reachable: ReachabilityTest, top_k: int):
+def _reachable_choice(action, q_trans, q_rot, bounds, workspace, held_rotation, config,
+                      reachable: ReachabilityTest, top_k: int):
     """(tests run, None) if ``action`` is reachable, else the best reachable (voxel, bins) of the top-K.
 
-    When no candidate is reachable either, the first choice stands (the episode then ends on
-    an unreachable pose, as in the reference).
+    Candidates lie in the ``workspace`` and include the ``held_rotation`` (the gripper's
+    current Euler bins) at the best voxel (reachability.py). When no candidate is reachable
+    either, the first choice stands (the episode then ends on an unreachable pose, as in the
+    reference).
     """
     if reachable(action.detach().cpu().numpy()):
         return 1, None
     checks, first = 1, action.detach().cpu()
     separation = max(1, REACH_SEPARATION_DEG // config.rotation_resolution)
-    for voxel, bins in zip(*ranked_candidates(q_trans, q_rot, top_k, separation)):
+    inside = inside_workspace(bounds, config.voxel_size, workspace)
+    candidates = ranked_candidates(q_trans, q_rot, top_k, separation, inside=inside, fallback_rotation=held_rotation)
+    for voxel, bins in zip(*candidates):
         pose = torch.cat([voxel_centre(voxel, bounds, config.voxel_size).float(),
                           bins_to_rotation(bins, config.rotation_resolution)]).cpu()
         if torch.allclose(pose, first[:7]):

@@ -95,6 +95,39 @@ def test_the_learner_rejects_a_poisoned_batch_and_quarantines_its_rows(learner):
     assert metrics["skipped_nonfinite"] == 0 and learner.step == 1 and rows.tolist() == [0, 1, 2, 3]
 
 
+def with_labels(a, voxel=(1, 2, 3), rot_grip=(0, 5, 11, 1)):
+    """Act-time labels as an actor records them (observation extras), valid for TINY."""
+    n = len(a["indices"])
+    a["extra_voxel_indices"] = np.tile(np.array(voxel, np.int64), (n, TINY.depths, 1))
+    a["extra_attention_coordinates"] = np.zeros((n, TINY.depths, 3), np.float32)
+    a["extra_rot_grip_indices"] = np.tile(np.array(rot_grip, np.int64), (n, 1))
+    return a
+
+
+@pytest.mark.parametrize("label, row, value", [
+    ("extra_voxel_indices", (1, 0, 2), TINY.voxel_size),          # one past the grid
+    ("extra_rot_grip_indices", (1, 2), TINY.rotation_bins),       # one past the Euler bins
+    ("extra_rot_grip_indices", (1, 3), 2),                        # the gripper has two bins
+])
+def test_act_time_labels_outside_the_network_are_rejected_not_gathered(learner, label, row, value):
+    """The wire only knows labels are >= 0; the learner knows its grid and bins."""
+    a = with_labels(arrays(3))
+    a[label][row] = value
+    metrics, rows, prio = learner.train_step(a)
+    assert metrics == {} and learner.step == 0 and rows.tolist() == [1] and prio.tolist() == [0.0]
+    assert learner.health["rejected_batches"] == 1
+
+    metrics, rows, _ = learner.train_step(with_labels(arrays(3)))  # in-range labels train
+    assert metrics["skipped_nonfinite"] == 0 and learner.step == 1 and len(rows) == 3
+
+
+def test_labels_for_another_depth_count_reject_the_batch(learner):
+    a = with_labels(arrays(2))
+    a["extra_voxel_indices"] = a["extra_voxel_indices"][:, :1]  # D = 1 for a 2-depth cascade
+    metrics, rows, _ = learner.train_step(a)
+    assert metrics == {} and rows.tolist() == [0, 1]
+
+
 def test_the_learner_counts_skipped_updates(learner):
     a = arrays(2)
     a["gripper_pose"][0, :3] = 3e38  # finite, but the network's output overflows

@@ -9,6 +9,7 @@ from qattention import C2FARM, ObservationBatch, QAttentionConfig, descend
 from qattention.action_codec import bins_to_rotation
 from qattention.crop import crop_images, gather_points, project_to_pixel
 from qattention.synthetic import observation_arrays
+from qattention.reachability import inside_workspace, ranked_candidates
 
 CFG = QAttentionConfig(image_crop=0)  # 2 x 16^3 over the reference's 1 m cube
 
@@ -164,3 +165,23 @@ def test_a_replaced_translation_keeps_labels_consistent_and_nothing_reachable_ke
     assert stuck.reach_checks.tolist() == [6] and not stuck.reach_replaced[0]
     off = descend(single_point_scene(targets), [q] * 2, CFG, reachable=lambda a: 1 / 0, top_k=0)
     assert off.reach_checks is None  # off: never asks
+
+
+def test_candidates_stay_in_the_workspace_and_include_the_held_rotation():
+    v, bins = 4, 12
+    q_trans = torch.arange(v ** 3, dtype=torch.float32).reshape(v, v, v)  # the far corner is best
+    q_rot = torch.zeros(3, bins)
+    q_rot[:, 3] = 1.0
+    held = torch.tensor([0, 6, 9])
+    # a child cube that sticks out of the workspace on the high-x side: its last x-layer is outside
+    bounds = torch.tensor([0.0, 0.0, 0.0, 0.4, 0.4, 0.4])
+    workspace = torch.tensor([-1.0, -1.0, -1.0, 0.3, 1.0, 1.0])
+    inside = inside_workspace(bounds, v, workspace)
+    assert inside[:3].all() and not inside[3].any()
+    voxels, rotations = ranked_candidates(q_trans, q_rot, 5, inside=inside, fallback_rotation=held)
+    assert (voxels[:, 0] < 3).all()  # no candidate in the outside layer
+    assert voxels[0].tolist() == [2, 3, 3] and rotations[0].tolist() == [3, 3, 3]
+    assert len(voxels) == 5 and rotations[-1].tolist() == held.tolist() and voxels[-1].tolist() == [2, 3, 3]
+    # nothing inside: no candidates at all
+    none = ranked_candidates(q_trans, q_rot, 5, inside=torch.zeros(v, v, v, dtype=torch.bool))
+    assert len(none[0]) == 0
