@@ -3,6 +3,11 @@
 Every episode stays in a bounded outbox until the replay server acknowledges it (stored or
 duplicate); unacknowledged ones are resent, so a replay restart loses nothing. The replay
 stores each (actor id, episode id) once, which turns at-least-once into exactly-once.
+
+An ack retires an episode only if it names that episode's payload digest: a stale ack, or
+one forged by a client that never saw the payload, is counted (``forged_acks``) and
+ignored, and the episode stays pending. (A client that can read the episodes key can still
+compute the digest: on an unauthenticated fabric only Zenoh's access control stops that.)
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from collections import OrderedDict
 import zenoh
 
 from protocol import keys
-from protocol.codec import ProtocolError
+from protocol.codec import ProtocolError, payload_digest
 from protocol.episode import Episode
 from protocol.messages import AckStatus, EpisodeAck, decode, encode
 
@@ -34,11 +39,12 @@ class Outbox:
         self._publisher = session.declare_publisher(
             keys.episodes(run_id, actor_id), congestion_control=zenoh.CongestionControl.BLOCK
         )
-        self._pending: OrderedDict[int, tuple[bytes, float]] = OrderedDict()
+        self._pending: OrderedDict[int, tuple[bytes, float]] = OrderedDict()  # episode id -> (payload, last sent)
+        self._digests: dict[int, str] = {}  # episode id -> payload digest, for the pending ones
         self._cond = threading.Condition()
         self._sn = itertools.count()  # source sequence numbers: the replay binds our id to this session
         self.counters = {"sent": 0, "acked": 0, "duplicates": 0, "rejected": 0, "resent": 0, "dropped": 0,
-                         "bad_acks": 0}
+                         "bad_acks": 0, "forged_acks": 0}
         self._subscriber = session.declare_subscriber(keys.acks(run_id, actor_id), self._on_ack)
 
     @property
@@ -66,9 +72,11 @@ class Outbox:
         with self._cond:
             while len(self._pending) >= self._size and not self._stopping:
                 dropped, _ = self._pending.popitem(last=False)
+                self._digests.pop(dropped, None)
                 self.counters["dropped"] += 1
                 log.warning("outbox full for %.0f s: dropped episode %d unacknowledged", self._wait, dropped)
             self._pending[episode.episode_id] = (payload, time.monotonic())
+            self._digests[episode.episode_id] = payload_digest(payload)
         self._put(payload)
         self.counters["sent"] += 1
 
@@ -116,8 +124,16 @@ class Outbox:
         if ack.actor_id != self.actor_id:
             return
         with self._cond:
-            if self._pending.pop(ack.episode_id, None) is None:
+            expected = self._digests.get(ack.episode_id)
+            if expected is None:
+                return  # not pending (any more): e.g. the ack of a resend
+            if ack.digest != expected:
+                self.counters["forged_acks"] += 1
+                if self.counters["forged_acks"] <= 3 or self.counters["forged_acks"] % 100 == 0:
+                    log.warning("ignored an ack for episode %d that names another payload (%d so far)",
+                                ack.episode_id, self.counters["forged_acks"])
                 return
+            del self._pending[ack.episode_id], self._digests[ack.episode_id]
             self._cond.notify_all()
         if ack.status is AckStatus.STORED:
             self.counters["acked"] += 1

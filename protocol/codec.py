@@ -17,6 +17,7 @@ size and nesting depth are checked without recursion, and the array table is che
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -355,3 +356,16 @@ def check_array_values(name: str, array: np.ndarray, finite: bool = True) -> Non
             raise ProtocolError(name, "bool array holds bytes other than 0 and 1")
     elif finite and array.dtype.kind == "f" and not np.isfinite(array).all():
         raise ProtocolError(name, "holds NaN or infinite values")
+
+
+def payload_digest(raw: bytes) -> str:
+    """The digest of an encoded message: a resend is byte-identical, a forgery is not.
+
+    The replay deduplicates episodes by it and returns it in every ack, so an actor only
+    lets an ack retire the exact payload it sent. 64 bits: a forger needs a second preimage,
+    not a birthday collision.
+    """
+    return hashlib.sha256(raw).hexdigest()[:16]
+
+
+DIGEST_PATTERN = re.compile(r"[0-9a-f]{16}")

@@ -18,6 +18,7 @@ import numpy as np
 
 from protocol import keys
 from protocol.codec import (
+    DIGEST_PATTERN,
     WIRE_DTYPES,
     ProtocolError,
     check_array_values,
@@ -59,6 +60,7 @@ class EpisodeAck:
     episode_id: int
     status: AckStatus
     reason: str = ""
+    digest: str = ""  #: payload_digest of the episode bytes this answers: only that exact payload is retired
 
 
 @dataclass
@@ -149,6 +151,7 @@ def encode(message: Message, limits: Limits = DEFAULT_LIMITS) -> bytes:
             "episode_id": message.episode_id,
             "status": AckStatus(message.status).value,
             "reason": message.reason,
+            "digest": message.digest,
         }
         return encode_frame(Kind.ACK, fields, {})
     if isinstance(message, WeightsUpdate):
@@ -250,6 +253,8 @@ def _validate_ack(m: EpisodeAck, limits: Limits) -> None:
     except (ValueError, TypeError):
         raise ProtocolError("status", f"unknown ack status {m.status!r:.80}") from None
     check_text("reason", m.reason, limits.max_text)
+    if not isinstance(m.digest, str) or not DIGEST_PATTERN.fullmatch(m.digest):
+        raise ProtocolError("digest", "an ack names its episode's payload digest (16 hex digits)")
 
 
 def _validate_weights(m: WeightsUpdate, limits: Limits) -> None:
@@ -338,14 +343,14 @@ def _decode_episode(fields, arrays, limits) -> Episode:
 
 
 def _decode_ack(fields, arrays, limits) -> EpisodeAck:
-    check_keys(fields, ("actor_id", "episode_id", "status", "reason"))
+    check_keys(fields, ("actor_id", "episode_id", "status", "reason", "digest"))
     _no_arrays(arrays)
     status = require(fields, "status", str)
     try:
         status = AckStatus(status)
     except ValueError:
         raise ProtocolError("status", f"unknown ack status {status[:80]!r}") from None
-    return EpisodeAck(fields["actor_id"], fields["episode_id"], status, fields["reason"])
+    return EpisodeAck(fields["actor_id"], fields["episode_id"], status, fields["reason"], fields["digest"])
 
 
 def _decode_weights(fields, arrays, limits) -> WeightsUpdate:

@@ -15,10 +15,9 @@ import time
 from pathlib import Path
 from typing import Optional
 
-from protocol.codec import ProtocolError
+from protocol.codec import ProtocolError, payload_digest
 from replay_server.checkpoint import CheckpointResult, list_checkpoints, load_latest, write_checkpoint
 from replay_server.state import ReplayState
-from replay_server.storage import payload_digest
 from replay_server.validation import decode_episode, decode_limits
 from replay_server.wal import list_segments, read_segment, segment_path
 

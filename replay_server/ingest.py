@@ -23,14 +23,13 @@ from typing import Callable, Optional
 import zenoh
 
 from protocol import keys
-from protocol.codec import ProtocolError, peek_fields
+from protocol.codec import ProtocolError, payload_digest, peek_fields
 from protocol.episode import Episode
 from protocol.messages import AckStatus, EpisodeAck, encode
 from replay_server.fair_queue import BACKPRESSURE, OK, FairQueue
 from replay_server.identity import SourceBindings, key_actor, source_zid
 from replay_server.rejections import protocol_reason
 from replay_server.state import ReplayState
-from replay_server.storage import payload_digest
 from replay_server.validation import decode_episode, decode_limits
 
 log = logging.getLogger("replay_server")
@@ -49,6 +48,11 @@ class Received:
     raw: Optional[bytes]
     size: int
     head: bytes = b""  #: the start of an oversized payload
+    digest: str = ""  #: payload_digest of the whole payload (every ack names it)
+
+    def __post_init__(self):
+        if not self.digest and self.raw is not None:
+            self.digest = payload_digest(self.raw)
 
 
 @dataclass
@@ -121,7 +125,8 @@ class Ingest:
         payload = sample.payload
         n = len(payload)
         if n > self.config.max_episode_bytes:
-            item, size = Received(actor, zid, None, n, payload.to_bytes()[:_HEAD_BYTES]), _HEAD_BYTES
+            whole = payload.to_bytes()  # hashed so the REJECTED ack names it; not kept
+            item, size = Received(actor, zid, None, n, whole[:_HEAD_BYTES], payload_digest(whole)), _HEAD_BYTES
         else:
             item, size = Received(actor, zid, payload.to_bytes(), n), n
         result = self.queue.put(zid or actor, item, size, self.config.ingest_put_timeout_s)
@@ -176,14 +181,14 @@ class Ingest:
             self.rejected.count("key_mismatch", f"episode of {ep.actor_id[:130]!r} on the key of {item.actor!r}",
                                 sender=item.actor)
             return None
-        digest = payload_digest(item.raw)
+        digest = item.digest
         with state.store_lock:
             dup = state.store.is_duplicate(ep.actor_id, ep.episode_id, digest)
             conflict = not dup and state.store.is_id_conflict(ep.actor_id, ep.episode_id, digest)
             reason = "" if dup else state.store.check(ep)
         if dup or (ep.key, digest) in seen:
             state.stats["duplicates"] += 1
-            acks.append(EpisodeAck(ep.actor_id, ep.episode_id, AckStatus.DUPLICATE))
+            acks.append(EpisodeAck(ep.actor_id, ep.episode_id, AckStatus.DUPLICATE, digest=digest))
             return None
         if reason:
             self._reject(item, "too_large" if "capacity" in reason else "schema", reason, acks)
@@ -212,7 +217,7 @@ class Ingest:
                         continue
                     state.limiter.inserts += a.episode.num_steps
                     self.bindings.stored(a.item.actor, a.item.zid)
-                    acks.append(EpisodeAck(a.episode.actor_id, a.episode.episode_id, AckStatus.STORED))
+                    acks.append(EpisodeAck(a.episode.actor_id, a.episode.episode_id, AckStatus.STORED, digest=a.digest))
         if state.wal and state.wal.bytes_since_rotate > self.config.wal_checkpoint_bytes:
             self._on_wal_growth()
 
@@ -226,7 +231,7 @@ class Ingest:
             return
         actor, eid = fields.get("actor_id"), fields.get("episode_id")
         if actor == item.actor and isinstance(eid, int) and not isinstance(eid, bool) and 0 <= eid < 2**63:
-            acks.append(EpisodeAck(actor, eid, AckStatus.REJECTED, detail[:500]))
+            acks.append(EpisodeAck(actor, eid, AckStatus.REJECTED, detail[:500], item.digest))
 
     def _publish_ack(self, ack: EpisodeAck) -> None:
         try:

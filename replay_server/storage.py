@@ -26,7 +26,6 @@ mutated after insertion, so a snapshot may hold references to them without copyi
 """
 from __future__ import annotations
 
-import hashlib
 import math
 import threading
 from collections import OrderedDict
@@ -42,11 +41,6 @@ from replay_server.sumtree import SumTree
 STEP_NAMES = ("actions", "rewards", "terminals", "policy_versions")
 COMPRESSIBLE_SUFFIXES = ("_rgb", "_points")
 MAX_DIGESTS_PER_ID = 4  #: distinct payloads remembered under one (actor, episode id)
-
-
-def payload_digest(raw) -> str:
-    """The dedup digest of an encoded episode: a resend is byte-identical, a forgery is not."""
-    return hashlib.sha256(raw).hexdigest()[:16]  # 64 bits: a forger needs a second preimage, not a birthday
 
 
 class FrameCodec:

@@ -26,6 +26,7 @@ from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launc
 from protocol import keys
 from protocol.fabric import FabricConfig, open_session
 from protocol.episode import Episode
+from protocol.codec import payload_digest
 from protocol.messages import AckStatus, EpisodeAck, decode, encode
 
 # One launcher run for the file: its start (torch in every role) counts against the first test.
@@ -202,7 +203,8 @@ def test_a_full_outbox_keeps_resending_while_it_waits_for_room():
         episode = decode(sample.payload.to_bytes(), expect=Episode)
         seen[episode.episode_id] = seen.get(episode.episode_id, 0) + 1
         if seen[episode.episode_id] > 1:
-            ack = EpisodeAck(episode.actor_id, episode.episode_id, AckStatus.STORED)
+            ack = EpisodeAck(episode.actor_id, episode.episode_id, AckStatus.STORED,
+                             digest=payload_digest(sample.payload.to_bytes()))
             replay.put(keys.acks("ob", episode.actor_id), encode(ack))
 
     subscriber = replay.declare_subscriber(keys.episodes("ob"), lossy_replay)
@@ -241,3 +243,35 @@ def test_a_full_outbox_stops_waiting_when_its_role_is_told_to_stop():
         outbox.close()
         actor.close()
         router.close()
+
+
+def test_an_ack_for_another_payload_never_retires_an_episode():
+    """A forger that did not see the episode (or a stale ack of an earlier payload with the
+    same id) acks it "stored": the outbox counts it, keeps the episode and resends it until
+    the replay's real ack, which names the payload's digest, arrives."""
+    endpoint = f"tcp/127.0.0.1:{get_free_port()}"
+    fabric = FabricConfig(connect=[endpoint], listen=[endpoint])
+    router = open_session(fabric, "router")
+    replay, forger, actor = open_session(fabric), open_session(fabric), open_session(fabric)
+    received: list[bytes] = []
+    subscriber = replay.declare_subscriber(keys.episodes("ob"), lambda s: received.append(s.payload.to_bytes()))
+    outbox = Outbox(actor, "ob", "actor-0", size=4, resend_after_s=0.3, wait_s=60.0)
+    try:
+        time.sleep(0.5)  # let the subscriptions reach the router
+        outbox.send(make_episode(steps=2, side=8, episode_id=7))
+        forged = EpisodeAck("actor-0", 7, AckStatus.STORED, digest="0" * 16)
+        for _ in range(3):
+            forger.put(keys.acks("ob", "actor-0"), encode(forged))
+        wait_for(lambda: outbox.counters["forged_acks"] == 3, 10, "the forged acks to arrive")
+        assert outbox.pending == 1 and outbox.counters["acked"] == 0
+        time.sleep(0.4)
+        assert outbox.resend_due() == 1  # still pending, so still resent
+        wait_for(lambda: received, 10, "the episode to reach the replay")
+        real = EpisodeAck("actor-0", 7, AckStatus.STORED, digest=payload_digest(received[0]))
+        replay.put(keys.acks("ob", "actor-0"), encode(real))
+        assert outbox.flush(timeout_s=10) and outbox.counters["acked"] == 1
+    finally:
+        outbox.close()
+        subscriber.undeclare()
+        for session in (actor, forger, replay, router):
+            session.close()

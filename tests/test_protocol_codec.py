@@ -21,13 +21,15 @@ from protocol import (
 )
 from protocol.observation import CAMERA_NAMES
 
+DIGEST = "0123456789abcdef"  #: an ack's payload digest (any 16 hex digits for the codec)
+
 
 def _messages():
     rng = np.random.default_rng(1)
     return [
         make_episode(),
-        EpisodeAck("actor-3", 17, AckStatus.DUPLICATE, "already stored"),
-        EpisodeAck("actor-3", 18, AckStatus.STORED),
+        EpisodeAck("actor-3", 17, AckStatus.DUPLICATE, "already stored", DIGEST),
+        EpisodeAck("actor-3", 18, AckStatus.STORED, digest=DIGEST),
         WeightsUpdate(
             version=5,
             learner_step=1200,
@@ -222,10 +224,11 @@ def test_episode_shapes_must_agree_with_the_step_count():
 def test_ids_that_could_widen_a_key_are_rejected(actor_id):
     # The replay server acks on acks/<actor_id>: "*" once made it publish on a wildcard.
     assert rejected_field(raw_episode_frame(labelled_episode(), actor_id=actor_id)) == "actor_id"
-    ack = encode_frame(Kind.ACK, {"actor_id": actor_id, "episode_id": 1, "status": "stored", "reason": ""}, {})
+    ack = encode_frame(Kind.ACK, {"actor_id": actor_id, "episode_id": 1, "status": "stored", "reason": "",
+                                  "digest": DIGEST}, {})
     assert rejected_field(ack) == "actor_id"
     with pytest.raises(ProtocolError):
-        encode(EpisodeAck(actor_id, 1, AckStatus.STORED))
+        encode(EpisodeAck(actor_id, 1, AckStatus.STORED, digest=DIGEST))
 
 
 @pytest.mark.parametrize("value", [-1, MAX_INT + 1, 2**64, True, 1.0, "1", None])

@@ -23,7 +23,7 @@ FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCh
 SMALL_EPISODE = encode(make_episode(steps=2, side=8))
 VALID = [
     SMALL_EPISODE,
-    encode(EpisodeAck("actor-0", 3, AckStatus.STORED)),
+    encode(EpisodeAck("actor-0", 3, AckStatus.STORED, digest="0123456789abcdef")),
     encode(Status("actor", "actor-0", "run", 1, "h", 0.0)),
     encode(SampleRequest(1, 32)),
     encode(PriorityUpdate(np.arange(3), np.arange(3), np.ones(3, np.float32))),

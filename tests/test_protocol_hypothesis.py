@@ -53,7 +53,7 @@ def small_episode() -> Episode:
 
 MESSAGES = [
     small_episode(),
-    EpisodeAck("actor-0", 3, AckStatus.REJECTED, "bad depth"),
+    EpisodeAck("actor-0", 3, AckStatus.REJECTED, "bad depth", "0123456789abcdef"),
     WeightsUpdate(2, 10, {"a.weight": np.ones((2, 3), np.float32), "a.bias": np.zeros(2, np.float16)}, "abc123", 1.7e9, 5),
     Status("learner", "learner-0", "run-1", 42, "host", 1.7e9, "running", {"loss/td": float("nan"), "n": 3}, {"k": "v"}),
     SampleRequest(7, 32, 500),

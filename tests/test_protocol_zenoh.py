@@ -24,6 +24,7 @@ PRELUDE = textwrap.dedent(
     import zenoh
     from conftest import make_episode
     from protocol import AckStatus, Episode, EpisodeAck, decode, encode, keys
+    from protocol.codec import payload_digest
     from protocol.fabric import FabricConfig, open_session
     fabric = FabricConfig(connect={connect!r}, shared_memory={shm!r})
     session = open_session(fabric)
@@ -38,7 +39,7 @@ while not received:
 data = received[0]
 episode = decode(data, expect=Episode)
 open(sys.argv[1], "wb").write(data)
-session.put(keys.acks("t", episode.actor_id), encode(EpisodeAck(episode.actor_id, episode.episode_id, AckStatus.STORED)))
+session.put(keys.acks("t", episode.actor_id), encode(EpisodeAck(episode.actor_id, episode.episode_id, AckStatus.STORED, digest=payload_digest(data))))
 print(json.dumps({"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}), flush=True)
 time.sleep(0.5)
 session.close()
