@@ -24,7 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import torch  # noqa: E402
 
-from qattention import C2FARM, ObservationBatch, TransitionBatch, cpu_small, paper, voxelise  # noqa: E402
+from qattention import C2FARM, ObservationBatch, TransitionBatch, cpu_small, paper  # noqa: E402
+from qattention.voxelise import voxelise  # noqa: E402
 from qattention.crop import gather_points  # noqa: E402
 from qattention.synthetic import observation_arrays, transition_arrays  # noqa: E402
 

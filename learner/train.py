@@ -203,7 +203,7 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
             if config.max_updates and learner.step >= config.max_updates:
                 break
             try:
-                batch = client.sample(timeout_s=config.sample_timeout_s)
+                batch = client.sample(timeout_s=config.sample_timeout_s, stop=ctx.stop)
             except (ReplayTimeout, ReplayError) as exc:
                 log.info("no batch yet (%s); asking again", exc)
                 continue

@@ -24,6 +24,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import threading
 import time
 
 import numpy as np
@@ -134,9 +135,11 @@ class ReplayClient:
                 return
             self._in_flight[rid] = now + self.request_timeout_s + 5.0
 
-    def sample(self, timeout_s: float = 30.0) -> SampleBatch:
+    def sample(self, timeout_s: float = 30.0, stop: threading.Event | None = None) -> SampleBatch:
         """The next batch (arrays are read-only zero-copy views; ``np.array(a)`` for a writable copy);
-        raises :class:`ReplayTimeout` after ``timeout_s`` without one, :class:`ReplayError` when refused.
+        raises :class:`ReplayTimeout` after ``timeout_s`` without one, or within 0.2 s of
+        ``stop`` being set (a role told to stop must not wait out the timeout, or the
+        launcher's grace ends first), and :class:`ReplayError` when refused.
 
         A request the server's rate limiter timed out is simply re-issued until ``timeout_s``
         has passed; the exception then carries the server's last reason."""
@@ -144,6 +147,8 @@ class ReplayClient:
         reason = ""
         while True:
             self._top_up()
+            if stop is not None and stop.is_set():
+                raise ReplayTimeout("stopped while waiting for a batch")
             left = deadline - time.monotonic()
             if left <= 0:
                 raise ReplayTimeout(

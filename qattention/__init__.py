@@ -2,18 +2,34 @@
 
 No processes or I/O here; actors call ``C2FARM.act``, the learner ``C2FARM.update``.
 Deviations from the reference are listed in README.md.
+
+The names below load on first use (PEP 562): every role reads ``qattention.config`` to
+resolve its settings, and the replay server, router and dashboard should not pay torch's
+import (seconds, hundreds of MB) for a dataclass.
 """
 
-from .action_codec import ActionLabels, decode_action, encode_action
-from .agent import C2FARM
-from .batch import ObservationBatch, TransitionBatch
-from .cascade import ActResult, descend
-from .config import QAttentionConfig, cpu_small, paper
-from .proprioception import proprioception
-from .q_attention import QAttentionNet, build_networks
-from .voxelise import child_bounds, point_to_voxel_index, voxel_centre, voxelise
+from importlib import import_module
 
-QAttentionAgent = C2FARM
+#: public name -> submodule that defines it
+_EXPORTS = {
+    "ActionLabels": "action_codec", "decode_action": "action_codec", "encode_action": "action_codec",
+    "C2FARM": "agent", "ObservationBatch": "batch", "TransitionBatch": "batch",
+    "ActResult": "cascade", "descend": "cascade",
+    "QAttentionConfig": "config", "cpu_small": "config", "paper": "config",
+    "QAttentionNet": "q_attention", "build_networks": "q_attention",
+    "child_bounds": "voxelise", "point_to_voxel_index": "voxelise", "voxel_centre": "voxelise",
+}
+# ``voxelise`` and ``proprioception`` are not re-exported: they are also submodule names, and
+# once a submodule is imported its name on the package is the module. Import them from there.
+
+
+def __getattr__(name: str):
+    if name == "QAttentionAgent":
+        name = "C2FARM"
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'qattention' has no attribute {name!r}")
+    return getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
+
 
 __all__ = [
     "ActResult",
@@ -32,7 +48,9 @@ __all__ = [
     "encode_action",
     "paper",
     "point_to_voxel_index",
-    "proprioception",
     "voxel_centre",
-    "voxelise",
 ]
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -167,3 +167,11 @@ def test_cli_prints_the_resolved_documented_config():
     printed = yaml.safe_load(result.stdout)
     assert printed["replay"]["capacity_transitions"] == 100000
     assert printed["run"]["run_id"] == "x"
+
+
+def test_reading_the_config_does_not_load_torch():
+    """The replay server, router and dashboard resolve the same config as the learner, but
+    never run a network: torch's import (seconds, hundreds of MB each) stays out of them."""
+    code = "import sys, deploy.config, replay_server.service, dashboard.app; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False", out.stderr

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import torch
 
-from qattention import QAttentionConfig, decode_action, encode_action, proprioception
+from qattention import QAttentionConfig, decode_action, encode_action
+from qattention.proprioception import proprioception
 from qattention.action_codec import crop_noise, decode_translation, rotation_to_bins
 from qattention.rotation import euler_to_quaternion, quaternion_to_euler, quaternion_to_matrix
 from qattention.voxelise import child_bounds, voxel_resolution

@@ -284,6 +284,10 @@ def test_rate_limiter_times_out_cleanly_and_holds_the_ratio(harness, fabric):
         with pytest.raises(ReplayTimeout, match="no answer"):
             with ReplayClient(f"tcp://127.0.0.1:{free_port()}", 8, request_timeout_s=0.2) as nobody:
                 nobody.sample(timeout_s=0.5)
+        stop = threading.Event()
+        threading.Timer(0.3, stop.set).start()
+        with pytest.raises(ReplayTimeout, match="stopped"):  # a stopping learner does not wait out the timeout
+            client.sample(timeout_s=600, stop=stop)
         proc, _ = harness.start_actor("actor-0", 5)
         assert proc.wait(60) == 0
         fabric.wait_status(lambda c: c["size_transitions"] == 50)
