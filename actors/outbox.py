@@ -44,7 +44,7 @@ class Outbox:
         self._cond = threading.Condition()
         self._sn = itertools.count()  # source sequence numbers: the replay binds our id to this session
         self.counters = {"sent": 0, "acked": 0, "duplicates": 0, "rejected": 0, "resent": 0, "dropped": 0,
-                         "bad_acks": 0, "forged_acks": 0}
+                         "bad_acks": 0, "forged_acks": 0, "unmatched_acks": 0}
         self._subscriber = session.declare_subscriber(keys.acks(run_id, actor_id), self._on_ack)
 
     @property
@@ -122,11 +122,13 @@ class Outbox:
             log.warning("ignored a malformed ack: %s", exc)
             return
         if ack.actor_id != self.actor_id:
+            self.counters["unmatched_acks"] += 1
             return
         with self._cond:
             expected = self._digests.get(ack.episode_id)
-            if expected is None:
-                return  # not pending (any more): e.g. the ack of a resend
+            if expected is None:  # not pending (any more): e.g. the second ack of a resend
+                self.counters["unmatched_acks"] += 1
+                return
             if ack.digest != expected:
                 self.counters["forged_acks"] += 1
                 if self.counters["forged_acks"] <= 3 or self.counters["forged_acks"] % 100 == 0:

@@ -62,6 +62,7 @@ class WeightsFollower:
         self.announced: int | None = None  #: the version the learner's heartbeat last named
         self.rejected_by = dict.fromkeys(REASONS, 0)  #: updates not taken, by reason
         self.bad_announcements = 0  #: learner status messages that could not be read
+        self.superseded = 0  #: payloads pushed out of the inbox unread by newer ones (a burst, or a flood)
         self.latency_s = 0.0  #: publish-to-receipt delay of the newest update (wall clocks; same host or NTP)
         self._subscriber = session.declare_subscriber(self._key, self._on_sample)
         self._status = session.declare_subscriber(keys.status(run_id, "learner", "*"), self._on_status)
@@ -75,6 +76,8 @@ class WeightsFollower:
         """For the actor's status: ``weights_rejected_<reason>`` and the learner's announced version."""
         out = {f"weights_rejected_{reason}": n for reason, n in self.rejected_by.items()}
         out["weights_announced"] = -1 if self.announced is None else self.announced
+        out["weights_superseded"] = self.superseded
+        out["weights_bad_announcements"] = self.bad_announcements
         return out
 
     def reject(self, reason: str, detail: str = "") -> None:
@@ -88,6 +91,8 @@ class WeightsFollower:
         try:
             payload = sample.payload.to_bytes()
             with self._lock:
+                if len(self._inbox) == self._inbox.maxlen:
+                    self.superseded += 1
                 self._inbox.append((payload, time.time()))
         except Exception as exc:  # never raise into Zenoh
             self.reject("internal_error", repr(exc))

@@ -270,6 +270,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except ConfigError as exc:
         print(f"c2farm: config error: {exc}", file=sys.stderr)
         return 2
+    from deploy.preflight import problems
+
+    found = problems(config, list(config.launch.roles) if args.command == "launch" else [args.command])
+    for problem in found:
+        print(f"c2farm: cannot start: {problem}", file=sys.stderr)
+    if found:
+        return 2
 
     if args.command == "launch":
         from deploy.launch import Launcher

@@ -126,6 +126,12 @@ def encode(message: Message, limits: Limits = DEFAULT_LIMITS) -> bytes:
     """Serialise any message after the checks ``decode`` applies, so what leaves decodes
     (a sender finds its own bug, not every receiver). Raises :class:`ProtocolError`."""
     validate(message, limits)
+    return encode_unchecked(message)
+
+
+def encode_unchecked(message: Message) -> bytes:
+    """Serialise without any check, as a buggy or hostile sender would (e.g. NaN rewards):
+    only for tests and benches that attack the receivers. Everything shipped uses ``encode``."""
     if isinstance(message, Episode):
         fields = {
             "actor_id": message.actor_id,

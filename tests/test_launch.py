@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -154,6 +155,41 @@ def test_a_role_without_a_router_fails_clearly(tmp_path: Path):
 def test_a_role_needs_a_run_id():
     result = subprocess.run(C2FARM + ["actor"], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert result.returncode == 2 and "run.run_id: not set" in result.stderr
+
+
+
+def _refused(args: list[str], tmp_path: Path) -> list[str]:
+    """Run ``c2farm <args>``; it must exit 2 without starting anything; returns its stderr lines."""
+    result = subprocess.run(C2FARM + args, capture_output=True, text=True, cwd=REPO, timeout=120)
+    lines = [line for line in result.stderr.splitlines() if line.startswith("c2farm")]
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir()), "a run directory was made"
+    return lines
+
+
+def test_a_launch_that_cannot_work_is_refused_up_front_in_one_line(tmp_path: Path):
+    runs = ["--runs-dir", str(tmp_path / "runs"), "--router-port", "0", "--dashboard-port", "0",
+            "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{get_free_port()}"]
+    [line] = _refused(["launch", "--task", "no_such_task", *runs], tmp_path)
+    assert "unknown task 'no_such_task'" in line and "push_button" in line
+    [line] = _refused(["launch", "--config", str(tmp_path / "missing.yaml"), *runs], tmp_path)
+    assert "missing.yaml: cannot read (No such file or directory)" in line
+    [line] = _refused(["launch", "--set", "qattention.cameras=[wrist]", *runs], tmp_path)
+    assert "qattention.cameras" in line and "not rendered" in line
+    with socket.socket() as taken:  # another run's dashboard
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        [line] = _refused(["launch", *runs, "--dashboard-port", str(port)], tmp_path)
+    assert f"dashboard.port: cannot listen on 127.0.0.1:{port}" in line
+
+
+def test_demos_refuses_counts_that_make_no_sense(tmp_path: Path):
+    for bad in (["--episodes", "-1"], ["--episodes", "0"], ["--image-size", "0"], ["--seed", "-3"]):
+        result = subprocess.run(C2FARM + ["demos", "--task", "push_button", "--out", str(tmp_path / "d"), *bad],
+                                capture_output=True, text=True, cwd=REPO, timeout=60)
+        assert result.returncode == 2 and "must be" in result.stderr, (bad, result.stderr)
+        assert not (tmp_path / "d").exists()
 
 
 def _can_connect(endpoint: str) -> bool:

@@ -12,13 +12,27 @@ from protocol.observation import CAMERA_NAMES
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", required=True, help=f"task name, one of: {', '.join(TASKS)}")
-    parser.add_argument("--episodes", type=int, default=10, help="number of successful demos to write (default 10)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode; later ones count up (default 0)")
+    parser.add_argument("--episodes", type=_positive, default=10, help="number of successful demos to write (default 10)")
+    parser.add_argument("--seed", type=_non_negative, default=0, help="seed of the first episode; later ones count up (default 0)")
     parser.add_argument("--out", required=True, help="output directory for the .mcap files")
     parser.add_argument("--cameras", default="front,left_shoulder,right_shoulder,wrist",
                         help=f"comma-separated cameras to record, from {','.join(CAMERA_NAMES)}")
-    parser.add_argument("--image-size", type=int, default=128, help="square image size in pixels (default 128)")
+    parser.add_argument("--image-size", type=_positive, default=128, help="square image size in pixels (default 128)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _non_negative(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
+    return value
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,0 +1,65 @@
+"""What can be checked before a role starts, checked once: one line per problem, exit code 2.
+
+A launch with a task that does not exist used to start every role, which then crash-looped
+for minutes while the launcher reported success. Here the task, the cameras, the ports this
+machine must listen on and the directories it must write are checked up front, for
+``c2farm launch`` (every role it starts) and for a single role started by hand.
+"""
+
+from __future__ import annotations
+
+import socket
+import tempfile
+from pathlib import Path
+
+from deploy.endpoints import tcp_endpoints
+
+#: Roles that build a simulated task (and so need a known task and cameras).
+SIM_ROLES = frozenset({"actor", "eval", "demo_source"})
+
+
+def problems(config, roles: list[str]) -> list[str]:
+    """Everything wrong with starting ``roles`` of ``config`` on this machine, one line each."""
+    found: list[str] = []
+    if SIM_ROLES & set(roles):
+        from actors.sim.tasks import TASKS  # imported only here: it loads the physics engine
+
+        if config.sim.task not in TASKS:
+            found.append(f"sim.task: unknown task {config.sim.task!r}; choose from {', '.join(TASKS)}")
+    missing = [c for c in config.qattention.cameras if c not in config.sim.cameras]
+    if missing and SIM_ROLES & set(roles):
+        found.append(f"qattention.cameras: {missing} are not rendered; sim.cameras is {list(config.sim.cameras)}")
+    if "router" in roles:
+        for host, port in tcp_endpoints(config.fabric.listen):
+            found += _port_free(host, port, "fabric.listen (the Zenoh router)")
+    if "dashboard" in roles and config.dashboard.port:
+        found += _port_free(config.dashboard.host, config.dashboard.port, "dashboard.port")
+    if "replay" in roles:
+        endpoint = config.replay.zmq_endpoint.replace("tcp://", "tcp/", 1)
+        for host, port in tcp_endpoints([endpoint]):
+            found += _port_free("127.0.0.1" if host == "*" else host, port, "replay.zmq_endpoint")
+    found += _writable(Path(config.run.runs_dir), "run.runs_dir")
+    if "demo_source" in roles and config.demos.episodes > 0:
+        found += _writable(Path(config.demos.directory), "demos.directory")
+    return found
+
+
+def _port_free(host: str, port: int, what: str) -> list[str]:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a port in TIME_WAIT is free to listen on
+        try:
+            sock.bind((host, port))
+        except OSError as exc:
+            return [f"{what}: cannot listen on {host}:{port} ({exc.strerror or exc}); is another run using it?"]
+    return []
+
+
+def _writable(directory: Path, what: str) -> list[str]:
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as exc:
+        return [f"{what}: cannot write to {str(directory)!r} ({exc.strerror or exc})"]
+    return []
