@@ -105,8 +105,8 @@ def _episode(cap: Captured, kind: str, n: int, rng: random.Random) -> tuple[str,
         return f"flood-{n}", rng.randbytes(rng.randrange(1, 4096))
     if kind == "truncated":
         return f"flood-{n}", raw[: rng.randrange(1, len(raw))]
-    if kind == "bit_flips":
-        return f"flood-{n}", _flip(raw, rng)
+    if kind == "bit_flips":  # on another id's key: if the flips still parse, the ids disagree
+        return f"flip-{n}", _flip(raw, rng)
     if kind == "nan_rewards":
         rewards = ep.rewards.copy()
         rewards[-1] = np.nan

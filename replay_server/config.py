@@ -101,8 +101,12 @@ class ReplayConfig:
     checkpoint_interval_s: float = 600.0
     # Number of complete checkpoints kept on disk.
     checkpoint_keep: int = 2
-    # Write a checkpoint when the server stops (SIGTERM / ctx.stop).
+    # Write a checkpoint when the server stops (SIGTERM / ctx.stop): always without a write-ahead
+    # log, else only while the store is at most stop_checkpoint_max_bytes (the WAL already holds
+    # every stored episode, and a multi-GB write would outlast the launcher's stop grace).
     checkpoint_on_stop: bool = True
+    # Largest store (bytes) checkpointed on stop when the write-ahead log is on (~1 s here).
+    stop_checkpoint_max_bytes: int = 256 * 2**20
     # Restore the latest complete checkpoint (and replay the write-ahead log) at start.
     restore_on_start: bool = True
     # Checkpoint/WAL directory override; None means ctx.run_dir / "replay".

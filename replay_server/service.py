@@ -89,7 +89,7 @@ class ReplayService:
         self.ingest.close()
         self.sampler.close()
         self.checkpointer.close()
-        if self.config.checkpoint_on_stop:
+        if self._checkpoint_on_stop():
             try:
                 self.checkpoint("stop")
             except Exception:
@@ -101,6 +101,16 @@ class ReplayService:
 
     def checkpoint(self, reason: str = "request") -> CheckpointResult:
         return self.checkpointer.checkpoint(reason)
+
+    def _checkpoint_on_stop(self) -> bool:
+        cfg = self.config
+        if not cfg.checkpoint_on_stop:
+            return False
+        if self.state.wal is None or self.state.store.bytes <= cfg.stop_checkpoint_max_bytes:
+            return True
+        log.info("no checkpoint on stop: %.0f MB stored, the write-ahead log holds them (next start replays it)",
+                 self.state.store.bytes / 2**20)
+        return False
 
     # ------------------------------------------------------------------ status
     def counters(self) -> dict[str, float]:

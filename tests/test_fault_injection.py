@@ -1,5 +1,6 @@
 """Fault injection on one live `c2farm launch`: every role SIGKILLed in turn (the router too),
-a SIGSTOPped learner, the acknowledged-episodes ledger, and a clean stop under load.
+a SIGSTOPped learner, the acknowledged-episodes ledger, a hostile flood on every key and the
+sample endpoint (bench/hostile.py), and a clean stop under load.
 
 One launcher run serves the whole file (starting torch roles is the slow part on 2 cores);
 the tests run in file order and share it. Every wait is a correctness timeout, generous so
@@ -8,6 +9,7 @@ a busy machine does not fail it; the times it took are printed (run with -s to s
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import signal
@@ -28,6 +30,10 @@ from protocol.fabric import FabricConfig, open_session
 from protocol.episode import Episode
 from protocol.codec import payload_digest
 from protocol.messages import AckStatus, EpisodeAck, decode, encode
+
+_spec = importlib.util.spec_from_file_location("hostile", REPO / "bench" / "hostile.py")
+hostile = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(hostile)
 
 # One launcher run for the file: its start (torch in every role) counts against the first test.
 pytestmark = pytest.mark.timeout(1800)
@@ -172,6 +178,31 @@ def test_no_acknowledged_episode_is_lost(live):
     )["replay"]["counters"]
     assert stored["episodes_evicted"] == 0  # nothing left by eviction either, so the count is the ledger
     print(f"acknowledged to actors: {acked:.0f}, stored: {stored['size_episodes']:.0f}")
+
+
+def test_a_flood_on_every_key_crashes_nothing_is_counted_and_training_goes_on(live):
+    """bench/hostile.py's flood, 5 rounds of every hostile kind on every key and the sample endpoint."""
+    before = wait_for(lambda: live.alive(*ROLES), BACK_S, "every role alive", interval=0.5)
+    endpoint = f"tcp/127.0.0.1:{live.ports['router']}"
+    session = open_session(FabricConfig(connect=[endpoint], listen=[endpoint]))
+    try:
+        captured = hostile.capture(session, "faults")
+        time.sleep(2.0)  # a heartbeat after the capture: counts from here on are the flood's
+        before = live.alive(*ROLES)
+        sent = hostile.flood(session, "faults", f"tcp://127.0.0.1:{live.ports['zmq']}", captured, rounds=5)
+    finally:
+        session.close()
+    after = live.wait_training(before, "the flood")
+    assert {n: after[n]["pid"] for n in ROLES} == {n: before[n]["pid"] for n in ROLES}, "a message took a role down"
+    # every hostile message is counted by its receiver (real traffic may add to the counts)
+    for target in hostile.RECEIVERS:
+        n = sum(v for (t, _), v in sent.items() if t == target)
+        wait_for(lambda: hostile.counted(live.alive(*ROLES), target) - hostile.counted(before, target) >= n,
+                 30, f"{target}: {n} hostile messages counted", interval=0.5)
+    learner = live.alive(*ROLES)["learner"]["counters"]
+    assert learner["weights_refused"] == 0 and learner["checkpoints_refused"] == 0  # weights stayed finite
+    replay = live.alive(*ROLES)["replay"]["counters"]
+    assert replay["ingest_rejected_nonfinite"] >= 5 and replay["ingest_rejected_impersonation"] >= 5
 
 
 def test_a_clean_stop_under_load_is_quick_and_leaves_nothing_behind(live):

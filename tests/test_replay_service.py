@@ -235,6 +235,22 @@ def test_sigkill_mid_stream_loses_nothing_acked(harness, fabric):
             assert sources[key].arrays[name].tobytes() == arr.tobytes()
 
 
+
+def test_a_large_store_stops_without_a_checkpoint_and_comes_back_from_its_log(harness, fabric):
+    """A multi-GB checkpoint on stop would outlast the launcher's grace; the WAL holds it all."""
+    settings = ("checkpoint_interval_s=0", "stop_checkpoint_max_bytes=1")
+    harness.start_server(*settings)
+    proc, _ = harness.start_actor("actor-0", 10)
+    assert proc.wait(60) == 0
+    fabric.wait_status(lambda c: c["episodes_stored"] == 10, timeout=30)
+    assert stop_process(harness.server) == 0
+    assert not list((harness.tmp / "replay" / "checkpoints").glob("*/manifest.json"))  # none written on stop
+    started = time.time()
+    harness.start_server(*settings)
+    c = fabric.wait_status(lambda c: c["size_episodes"] == 10, timeout=30, after=started)
+    assert c["wal_replayed_episodes"] == 10
+
+
 def test_malformed_messages_are_rejected_and_counted(harness, fabric):
     harness.start_server("max_episode_bytes=60000")
     key = keys.episodes(fabric.run_id, "bad-actor")
