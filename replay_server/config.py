@@ -93,7 +93,7 @@ class ReplayConfig:
     ingest_sender_queue_size: int = 16
     # Most bytes queued per sender (see ingest_sender_queue_size).
     ingest_sender_queue_bytes: int = 256 * 1024**2
-    # Seconds an actor id stays bound to the Zenoh source (session id, when samples carry one) that last stored under it; claims from another source meanwhile are impersonation. Short, because a restarted actor (a new session, back in 7-11 s) is locked out until it expires.
+    # Seconds an actor id stays bound to the Zenoh source (session id, when samples carry one) that last stored under it; claims from another source meanwhile are impersonation. Released at once when the actor's liveliness token goes (a restarted actor gets its id back); the TTL covers a lost DELETE.
     identity_bind_ttl_s: float = 15.0
     # Seconds between two log lines about the same rejection reason (the rest are only counted).
     reject_log_interval_s: float = 5.0

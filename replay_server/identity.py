@@ -7,8 +7,10 @@ On an unauthenticated fabric an id is only a claim. Two things make claims check
 - when a sample carries ``source_info`` (Zenoh 1.x sets it only when the publisher attaches
   one, e.g. ``SourceInfo(publisher.id, sn)``), the actor id is bound to that Zenoh session
   id while it keeps storing episodes; an episode claiming the id from another session
-  within ``ttl_s`` of the bound one's last store is impersonation. The binding expires so
-  a restarted actor (a new session id) gets its id back after ``ttl_s``. source_info is
+  within ``ttl_s`` of the bound one's last store is impersonation. The binding is released
+  when the actor's liveliness token goes away (its process or session ended), so a
+  restarted actor (a new session id) gets its id back at once; otherwise (a token that
+  never existed, or a lost DELETE) it expires after ``ttl_s``. source_info is
   itself sent by the publisher, so this stops mistakes and casual spoofing, not a
   determined attacker: that needs Zenoh TLS and access control (see README "Trust").
 """
@@ -72,6 +74,11 @@ class SourceBindings:
             self._bound.move_to_end(actor)
             while len(self._bound) > self.max_ids:
                 self._bound.popitem(last=False)
+
+    def release(self, actor: str) -> bool:
+        """Forget ``actor``'s binding (its session is gone); True if there was one."""
+        with self._lock:
+            return self._bound.pop(actor, None) is not None
 
     def __len__(self) -> int:
         return len(self._bound)

@@ -83,17 +83,35 @@ class Ingest:
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self._subscriber = None
+        self._liveliness = None
+        state.stats.setdefault("identity_released", 0)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
         self._thread = threading.Thread(target=self._loop, name="replay-ingest", daemon=True)
         self._thread.start()
         self._subscriber = self.session.declare_subscriber(keys.episodes(self.run_id, "*"), self._on_sample)
+        self._liveliness = self.session.liveliness().declare_subscriber(
+            keys.alive(self.run_id, "actor", "*"), self._on_liveliness)
 
     def stop_receiving(self) -> None:
         if self._subscriber is not None:
             self._subscriber.undeclare()
             self._subscriber = None
+        if self._liveliness is not None:
+            self._liveliness.undeclare()
+            self._liveliness = None
+
+    def _on_liveliness(self, sample) -> None:
+        """An actor's token went away: its id is free for the next session that claims it."""
+        try:
+            if sample.kind != zenoh.SampleKind.DELETE:
+                return
+            _, instance = keys.parse_role_instance(str(sample.key_expr))
+            if self.bindings.release(instance):
+                self.state.stats["identity_released"] += 1
+        except Exception as exc:  # never raise into zenoh
+            self.callback_errors.error(exc, "liveliness callback")
 
     def close(self, timeout: float = 60.0) -> None:
         """Stop receiving, then drain what is queued."""

@@ -270,6 +270,31 @@ def test_impersonation_does_not_suppress_the_real_actors_episodes(make_replay):
         fake.close()
 
 
+
+def test_a_restarted_actor_gets_its_id_back_when_the_old_session_is_gone(make_replay):
+    """The binding is released by the old session's liveliness token going away, not the TTL."""
+    r = make_replay(identity_bind_ttl_s=600.0)
+    block = zenoh.CongestionControl.BLOCK
+    old = r.client_session()
+    token = old.liveliness().declare_token(keys.alive(r.run_id, "actor", "a0"))
+    pub = old.declare_publisher(keys.episodes(r.run_id, "a0"), congestion_control=block)
+    time.sleep(0.3)
+    pub.put(encode(synthetic_episode("a0", 0, size=SIZE)), source_info=zenoh.SourceInfo(pub.id, 1))
+    r.wait(lambda c: c["episodes_stored"] == 1)
+    token.undeclare()
+    old.close()  # the actor process died
+    r.wait(lambda c: c["identity_released"] == 1)
+    new = r.client_session()
+    try:
+        pub = new.declare_publisher(keys.episodes(r.run_id, "a0"), congestion_control=block)
+        time.sleep(0.3)
+        pub.put(encode(synthetic_episode("a0", 1, size=SIZE)), source_info=zenoh.SourceInfo(pub.id, 1))
+        c = r.wait(lambda c: c["episodes_stored"] == 2)
+        assert c["ingest_rejected_impersonation"] == 0
+    finally:
+        new.close()
+
+
 def test_wildcard_or_garbage_ids_never_get_an_ack(make_replay):
     r = make_replay()
     good = encode(synthetic_episode("a0", 0, size=SIZE))
