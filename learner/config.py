@@ -21,3 +21,4 @@ class LearnerConfig:
     log_every: int = 10  #: write a metrics row (CSV + TensorBoard) every this many updates
     sample_timeout_s: float = 30.0  #: longest wait for one batch before logging why and asking again
     tensorboard: bool = True  #: also write TensorBoard scalars under runs/<id>/tensorboard
+    acting_average: float = 0.0  #: publish an EMA of the online weights (this decay per update) for acting and evaluation; 0 = the online weights (reference)

@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from learner.acting_average import ActingAverage
 from learner.batch_guard import label_out_of_range_rows, nonfinite_rows
 from learner.checkpoint import NonFiniteState, load_latest, save_checkpoint
 from learner.config import LearnerConfig
@@ -70,6 +71,7 @@ class Learner:
         self.health = {"skipped_updates": 0, "rejected_batches": 0, "weights_refused": 0, "checkpoints_refused": 0}
         self._last_metrics: dict[str, float] = {}
         self._rates = {"updates_per_s": 0.0, "samples_per_s": 0.0}
+        self.acting = ActingAverage(config.acting_average)  #: what actors act with (acting_average.py)
         self.restore()
         sent = self.published.read()
         if sent > self.version:
@@ -89,6 +91,7 @@ class Learner:
             "numpy_rng": json.dumps(self.rng.bit_generator.state),
             "python_rng": json.dumps(random.getstate()),
             "qattention_config": json.dumps(asdict(self.qconfig), default=str),
+            "acting_average": self.acting.state_dict(),
         }
 
     def restore(self) -> bool:
@@ -100,6 +103,7 @@ class Learner:
         self.step, self.version, self.samples = state["step"], state["version"], state["samples"]
         self.env_steps = state.get("env_steps", 0)
         self.health.update(state.get("health", {}))
+        self.acting.load_state_dict(state.get("acting_average") or {})
         torch.set_rng_state(state["torch_rng"])
         self.rng.bit_generator.state = json.loads(state["numpy_rng"])
         python_state = json.loads(state["python_rng"])
@@ -127,7 +131,7 @@ class Learner:
         announced, actors/weights.py), then sent.
         """
         version = self.version + 1
-        payload = publisher.encode(self.agent.weights(), version, self.step, self.env_steps)
+        payload = publisher.encode(self.acting.weights(self.agent.weights()), version, self.step, self.env_steps)
         if payload is None:
             self.health["weights_refused"] += 1
             return False
@@ -163,6 +167,8 @@ class Learner:
         batch = TransitionBatch.from_arrays(arrays, self.qconfig.cameras, self.device)
         metrics, priorities = self.agent.update(batch)
         self.step += 1
+        if self.acting.enabled and not metrics["skipped_nonfinite"]:
+            self.acting.update(self.agent.weights())
         self.samples += int(arrays["indices"].shape[0])
         if metrics["skipped_nonfinite"]:
             self.health["skipped_updates"] += 1
