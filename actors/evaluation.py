@@ -2,6 +2,9 @@
 
 The same seeds for every version make the success rates comparable along the run; the
 results go to the dashboard (heartbeat counters) and to ``runs/<id>/metrics/eval.csv``.
+Each episode is recorded under ``runs/<id>/eval/`` as MCAP (frames, executed next-best poses,
+why it ended), and the first decision of the first episode as a Q-attention snapshot
+(``eval/qattention-latest.npz``, actors/qattention_snapshot.py) for the dashboard.
 """
 
 from __future__ import annotations
@@ -11,10 +14,11 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import torch
 
-from actors.actor_loop import ActingPolicy, rollout
+from actors.actor_loop import ActingPolicy, Rollout, rollout
 from actors.config import ActorConfig
 from actors.weights import WeightsFollower
 from protocol.fabric import open_session
@@ -40,13 +44,13 @@ class EvalResult:
     unreachable_rate: float  #: episodes that ended on a pose the arm could not reach
 
 
-def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras,
-             record_dir: Path | None = None, stop=None) -> tuple[float, float, float, int] | None:
+def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras, record_dir: Path | None = None, stop=None,
+             on_first: Callable[[Rollout], None] | None = None) -> tuple[float, float, float, int] | None:
     """Greedy rollouts on seeds ``eval_seed, eval_seed + 1, ...``: (success, return, unreachable, n).
 
     Runs ``eval_episodes``, or only ``eval_min_episodes`` when none of those succeeded (a 0 %
     point needs fewer episodes to be sure of). None when stopped part-way: a partial result
-    would bias the curve.
+    would bias the curve. ``on_first`` is handed the first episode (the Q-attention snapshot).
     """
     if record_dir is not None:
         record_dir.mkdir(parents=True, exist_ok=True)
@@ -64,11 +68,14 @@ def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras,
         returns += r.total_reward
         unreachable += int(r.reason == "unreachable")
         done += 1
+        if i == 0 and on_first is not None:
+            on_first(r)
         if record_dir is not None:
             from actors.demos.mcap_io import write_episode_mcap
 
             write_episode_mcap(record_dir / f"v{policy.version:06d}-seed{config.eval_seed + i}.mcap",
-                               r.observations, task=env.task_name, seed=config.eval_seed + i, success=r.success)
+                               r.observations, task=env.task_name, seed=config.eval_seed + i, success=r.success,
+                               actions=r.actions, end_reason=r.reason, unreachable_reason=r.unreachable_reason)
     return successes / done, returns / done, unreachable / done, done
 
 
@@ -107,9 +114,12 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             if not follower.adopt(update, policy.agent.load_weights):
                 continue  # did not fit the networks (counted by the follower)
             record = ctx.run_dir / "eval" if config.record_eval else None
-            result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop)
+            first: list[Rollout] = []
+            result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append)
             if result is None:
                 break  # stopped mid-evaluation
+            if first:
+                write_snapshot(ctx.run_dir / "eval", policy, first[0], env.task_name, config.eval_seed, update)
             success, mean_return, unreachable, n = result
             evaluated_version = update.version
             latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return,
@@ -124,6 +134,19 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
         session.close()
         env.close()
     return 0
+
+
+def write_snapshot(directory: Path, policy: ActingPolicy, first: Rollout, task: str, seed: int, update) -> None:
+    """The first decision of ``first`` as ``qattention-latest.npz``; a failure is logged, never fatal."""
+    from actors.qattention_snapshot import FILENAME, compute_snapshot, save_snapshot
+
+    try:
+        meta = {"weights_version": update.version, "learner_step": update.learner_step, "env_steps": update.env_steps,
+                "task": task, "seed": seed, "time": time.time(), "end": first.reason}
+        action = first.actions[0] if first.actions else None
+        save_snapshot(directory / FILENAME, compute_snapshot(policy.agent, first.observations[0], action, meta=meta))
+    except Exception:  # the dashboard's picture must never stop an evaluation
+        log.exception("could not write the Q-attention snapshot")
 
 
 def _append_csv(path: Path, result: EvalResult) -> None:

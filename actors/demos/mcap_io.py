@@ -6,6 +6,15 @@ Raw layout, one message per control step per channel, ``sequence`` = frame index
 ``/raw/<cam>/rgb`` uint8 [H,W,3]; ``/raw/<cam>/depth`` float32 [H,W] z-depth;
 ``/raw/<cam>/calibration`` float32 K(9) + extrinsics(16). Points are re-derived from depth with the
 stored matrices, as the environment derived them. Episode facts are in the ``episode`` metadata.
+
+Policy episodes (evaluation rollouts) also carry ``/policy/next_best_pose`` float32[8] (xyz, quat
+xyzw, gripper open), ``sequence`` = the frame it was chosen from (one fewer than the frames), and
+say why they ended in the metadata (``end``: success / timeout / unreachable / failed, plus
+``unreachable_reason``). Both are additions: files without them still load, and readers that
+predate them skip the channel (it is outside ``/raw/``).
+
+:func:`read_episode_view` reads only what a viewer needs (images, calibration, poses, actions),
+without the points and without the simulator, so the dashboard can use it.
 """
 
 from __future__ import annotations
@@ -20,11 +29,11 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from actors.demos import foxglove as fx
-from actors.sim.cameras import camera_frame
-from protocol.observation import Observation
+from protocol.observation import ACTION_SIZE, Observation
 
 PROPRIO_SIZE = 25
 RAW = "application/octet-stream"
+ACTION_TOPIC = "/policy/next_best_pose"
 
 
 class DemoFileError(ValueError):
@@ -46,6 +55,9 @@ class Demo:
     waypoint_frames: list[int] = field(default_factory=list)  #: frame index at which each scripted waypoint ended
     control_hz: int = 20  #: recording rate (frames per simulated second)
     attempts: int = 1  #: seeds tried for this demo (failed demos are retried with the next seed)
+    actions: list[np.ndarray] = field(default_factory=list)  #: policy episodes: the pose chosen at each frame but the last
+    end_reason: str = ""  #: policy episodes: why it ended (success, timeout, unreachable, failed); "" for demos
+    unreachable_reason: str = ""  #: the control agent's why, for an unreachable end
 
 
 def _proprio(o: Observation) -> np.ndarray:
@@ -77,6 +89,8 @@ def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
 
         ch = {"proprio": raw("/raw/proprio", {"dtype": "float32", "shape": PROPRIO_SIZE}),
               "tf": js("/tf", "foxglove.FrameTransforms"), "joints": js("/joint_states", "c2farm.JointStates")}
+        if demo.actions:
+            ch["action"] = raw(ACTION_TOPIC, {"dtype": "float32", "shape": ACTION_SIZE})
         for c in cams:
             size = demo.observations[0].cameras[c].rgb.shape[0]
             ch[c + "rgb"] = raw(f"/raw/{c}/rgb", {"dtype": "uint8", "shape": f"{size},{size},3"})
@@ -92,6 +106,8 @@ def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
                 w.add_message(ch[key], log_time=t, data=data, publish_time=t, sequence=i)
 
             put("proprio", _proprio(o).tobytes())
+            if i < len(demo.actions):
+                put("action", np.asarray(demo.actions[i], np.float32).reshape(ACTION_SIZE).tobytes())
             tfs = [fx.transform(t, "grasp", o.gripper_pose)]
             put("joints", json.dumps({"timestamp": fx.stamp(t), "name": [f"panda_joint{j + 1}" for j in range(7)],
                                       "position": o.joint_positions.tolist(), "velocity": o.joint_velocities.tolist(),
@@ -111,14 +127,26 @@ def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
             "task": demo.task, "seed": str(demo.seed), "success": json.dumps(demo.success),
             "frames": str(len(demo.observations)), "cameras": json.dumps(cams),
             "waypoint_frames": json.dumps(demo.waypoint_frames), "control_hz": str(demo.control_hz),
-            "attempts": str(demo.attempts), "format": "c2farm-demo/1"})
+            "attempts": str(demo.attempts), "format": "c2farm-demo/1",
+            **({"end": demo.end_reason, "unreachable_reason": demo.unreachable_reason} if demo.end_reason else {})})
         w.finish()
     return path.stat().st_size
 
 
-def load_demo(path: str | Path) -> Demo:
-    """Read a demo file back into Observations; any problem raises DemoFileError naming the file."""
-    path = Path(path)
+@dataclass
+class _RawEpisode:
+    """The ``/raw/`` and policy channels of one file, by frame index, plus its ``episode`` metadata."""
+
+    meta: dict[str, str]
+    frames: int
+    cameras: list[str]
+    proprio: dict[int, np.ndarray]
+    arrays: dict[tuple[str, str], dict[int, np.ndarray]]
+    actions: dict[int, np.ndarray]
+
+
+def _read_raw(path: Path, kinds: tuple[str, ...]) -> _RawEpisode:
+    """Read the file's raw channels of ``kinds`` (rgb, depth, calibration); DemoFileError on any problem."""
     if not path.is_file():
         raise DemoFileError(path, "no such file")
     try:
@@ -130,31 +158,49 @@ def load_demo(path: str | Path) -> Demo:
             ep = meta["episode"]
             n, cams = int(ep["frames"]), json.loads(ep["cameras"])
             proprio: dict[int, np.ndarray] = {}
+            actions: dict[int, np.ndarray] = {}
             arrays: dict[tuple[str, str], dict[int, np.ndarray]] = {}
             for _, channel, msg in reader.iter_messages():
                 topic = channel.topic
-                if not topic.startswith("/raw/"):
+                if not topic.startswith("/raw/") and topic != ACTION_TOPIC:
+                    continue
+                parts = topic.split("/")
+                if len(parts) == 4 and parts[3] not in kinds:
                     continue
                 dtype = np.dtype(channel.metadata["dtype"])
                 shape = tuple(int(v) for v in channel.metadata["shape"].split(","))
                 arr = np.frombuffer(msg.data, dtype=dtype).reshape(shape)
                 if topic == "/raw/proprio":
                     proprio[msg.sequence] = arr
+                elif topic == ACTION_TOPIC:
+                    actions[msg.sequence] = arr
                 else:
-                    _, _, cam, kind = topic.split("/")
+                    _, _, cam, kind = parts
                     arrays.setdefault((cam, kind), {})[msg.sequence] = arr
     except DemoFileError:
         raise
     except Exception as e:  # truncated, corrupt, not MCAP at all ...
         raise DemoFileError(path, f"malformed or truncated MCAP ({type(e).__name__}: {e})") from None
     if sorted(proprio) != list(range(n)) or any(
-            sorted(arrays.get((c, k), {})) != list(range(n)) for c in cams for k in ("rgb", "depth", "calibration")):
+            sorted(arrays.get((c, k), {})) != list(range(n)) for c in cams for k in kinds):
         raise DemoFileError(path, f"expected {n} complete frames, found {len(proprio)}: file is truncated or inconsistent")
+    if actions and sorted(actions) != list(range(len(actions))):
+        raise DemoFileError(path, f"next-best poses of frames {sorted(actions)} are not one per frame from 0")
+    return _RawEpisode(ep, n, cams, proprio, arrays, actions)
+
+
+def load_demo(path: str | Path) -> Demo:
+    """Read a demo file back into Observations; any problem raises DemoFileError naming the file."""
+    from actors.sim.cameras import camera_frame  # the simulator stays out of readers that need no points
+
+    path = Path(path)
+    raw = _read_raw(path, ("rgb", "depth", "calibration"))
+    ep, arrays = raw.meta, raw.arrays
     observations = []
-    for i in range(n):
-        v = proprio[i]
+    for i in range(raw.frames):
+        v = raw.proprio[i]
         frames = {}
-        for c in cams:
+        for c in raw.cameras:
             cal = arrays[(c, "calibration")][i]
             frames[c] = camera_frame(arrays[(c, "rgb")][i].copy(), arrays[(c, "depth")][i],
                                      cal[:9].reshape(3, 3), cal[9:].reshape(4, 4))
@@ -163,11 +209,56 @@ def load_demo(path: str | Path) -> Demo:
             joint_positions=v[10:17].copy(), joint_velocities=v[17:24].copy(), step=int(v[24])))
     return Demo(task=ep["task"], seed=int(ep["seed"]), success=json.loads(ep["success"]), observations=observations,
                 waypoint_frames=json.loads(ep["waypoint_frames"]), control_hz=int(ep["control_hz"]),
-                attempts=int(ep["attempts"]))
+                attempts=int(ep["attempts"]), actions=[raw.actions[i].copy() for i in sorted(raw.actions)],
+                end_reason=ep.get("end", ""), unreachable_reason=ep.get("unreachable_reason", ""))
+
+
+@dataclass
+class EpisodeView:
+    """What a viewer shows of an episode file: images, camera matrices, poses; no points."""
+
+    task: str
+    seed: int
+    success: bool
+    cameras: list[str]
+    rgb: dict[str, list[np.ndarray]]  #: per camera, uint8 [H, W, 3] per frame
+    intrinsics: dict[str, list[np.ndarray]]  #: per camera, float32 [3, 3] per frame
+    extrinsics: dict[str, list[np.ndarray]]  #: per camera, float32 [4, 4] camera-to-world per frame
+    gripper_pose: list[np.ndarray]  #: float32 [7] per frame
+    actions: list[np.ndarray]  #: float32 [8] per decision (empty for files written without them)
+    end_reason: str  #: success, timeout, unreachable, failed; "" when the file does not say
+    unreachable_reason: str
+
+    @property
+    def frames(self) -> int:
+        return len(self.gripper_pose)
+
+
+def read_episode_view(path: str | Path) -> EpisodeView:
+    """The viewable part of an episode file (no points, no simulator import); DemoFileError on any problem."""
+    path = Path(path)
+    raw = _read_raw(path, ("rgb", "calibration"))
+    ep, order = raw.meta, range(raw.frames)
+    cal = {c: [raw.arrays[(c, "calibration")][i] for i in order] for c in raw.cameras}
+    return EpisodeView(
+        task=ep["task"], seed=int(ep["seed"]), success=json.loads(ep["success"]), cameras=list(raw.cameras),
+        rgb={c: [raw.arrays[(c, "rgb")][i] for i in order] for c in raw.cameras},
+        intrinsics={c: [k[:9].reshape(3, 3) for k in cal[c]] for c in raw.cameras},
+        extrinsics={c: [k[9:].reshape(4, 4) for k in cal[c]] for c in raw.cameras},
+        gripper_pose=[raw.proprio[i][0:7] for i in order],
+        actions=[raw.actions[i] for i in sorted(raw.actions)],
+        end_reason=ep.get("end", ""), unreachable_reason=ep.get("unreachable_reason", ""))
 
 
 def write_episode_mcap(path: str | Path, observations: list[Observation], task: str, seed: int, success: bool,
-                       control_hz: int = 20) -> int:
-    """Any episode (e.g. an evaluation rollout, one frame per decision) as a demo-format MCAP file."""
+                       control_hz: int = 20, actions=(), end_reason: str = "", unreachable_reason: str = "") -> int:
+    """Any episode (e.g. an evaluation rollout, one frame per decision) as a demo-format MCAP file.
+
+    ``actions`` are the next-best poses executed from each frame but the last; ``end_reason``
+    (success, timeout, unreachable, failed) and ``unreachable_reason`` say why it ended.
+    """
+    if len(actions) > max(0, len(observations) - 1):
+        raise ValueError(f"{len(actions)} actions for {len(observations)} frames: at most one per frame but the last")
     return write_demo(path, Demo(task=task, seed=seed, success=success, observations=list(observations),
-                                 control_hz=control_hz))
+                                 control_hz=control_hz, actions=[np.asarray(a, np.float32) for a in actions],
+                                 end_reason=end_reason, unreachable_reason=unreachable_reason))
