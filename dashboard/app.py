@@ -1,9 +1,18 @@
-"""The dashboard's HTTP face (FastAPI): no Zenoh here, only a :class:`RoleTable` to read.
+"""The dashboard's HTTP face (FastAPI): no Zenoh here, only a :class:`RoleTable` and run files to read.
 
-- ``GET /api/status``: JSON, every role instance alive or gone, last seen, its counters;
+- ``GET /api/status``: JSON, every role instance alive or gone (with its state in words), last
+  seen, its counters;
+- ``GET /api/history``: learning curves from ``metrics/eval.csv`` and ``metrics/learner.csv``;
+- ``GET /api/episodes``: the latest evaluation's episodes (frames, chosen poses in pixels,
+  outcomes), frames at ``/api/episodes/frame/<file>/<camera>/<index>.png``;
+- ``GET /api/qattention``: the latest Q-attention snapshot (voxels, top-Q voxels, chosen pose);
 - ``GET /healthz``: liveness of the dashboard itself;
-- ``GET /metrics``: the same numbers in Prometheus text format;
-- ``GET /``: an HTML page that polls /api/status.
+- ``GET /metrics``: the role counters in Prometheus text format;
+- ``GET /``: the page (static/app.js, vendored uPlot and three.js: no network needed).
+
+The file-backed answers only read files the roles write anyway, are memoised on the files'
+stamps and carry an ETag (a browser's revalidation gets a 304), so polling the page adds no
+work to the learner or the actors. The JSON shapes are documented in README.md (Dashboard).
 
 Counters are whatever the roles report, NaN and inf included. JSON has no spelling for
 those (Starlette refuses them with an HTTP 500), so every JSON answer maps a non-finite
@@ -15,27 +24,71 @@ skips non-finite updates shows it in its own counters (``skipped_updates``,
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI
-from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse
+from fastapi import FastAPI, Request
+from fastapi.middleware.gzip import GZipMiddleware
+from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse, Response
+from fastapi.staticfiles import StaticFiles
 
+from dashboard.attention import AttentionSnapshot
+from dashboard.episodes import EvalEpisodes
+from dashboard.filecache import FileCache
+from dashboard.history import RunHistory
 from dashboard.registry import RoleTable
+from dashboard.roles import with_state_words
 
 _METRIC_NAME = re.compile(r"[^a-zA-Z0-9_]")
 
 
-def create_app(table: RoleTable, refresh_ms: int = 1000) -> FastAPI:
-    app = FastAPI(title="C2F-ARM dashboard", docs_url=None, redoc_url=None)
+def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | None = None) -> FastAPI:
+    """The app for one run; ``run_dir`` (runs/<run_id>/) feeds the charts, episodes and Q-attention view."""
+    app = FastAPI(title="C2F-ARM dashboard", docs_url=None, redoc_url=None, openapi_url=None)
+    app.add_middleware(GZipMiddleware, minimum_size=2048)
     page = resources.files("dashboard").joinpath("index.html").read_text(encoding="utf-8")
-    page = page.replace("__REFRESH_MS__", str(int(refresh_ms))).replace("__RUN_ID__", table.run_id)
+    page = page.replace("__REFRESH_MS__", str(int(refresh_ms))).replace("__RUN_ID__", _html(table.run_id))
+    app.mount("/static", StaticFiles(directory=str(resources.files("dashboard").joinpath("static"))), name="static")
+    cache, encoded = FileCache(), FileCache(max_entries=16)
+    run = Path(run_dir) if run_dir is not None else None
+    history = RunHistory(run, cache) if run else None
+    episodes = EvalEpisodes(run, cache, history.eval_csv) if run else None
+    attention = AttentionSnapshot(run, cache) if run else None
 
     @app.get("/api/status")
-    async def api_status() -> JSONResponse:
-        return JSONResponse(json_safe(table.snapshot()))
+    def api_status() -> JSONResponse:
+        return JSONResponse(json_safe(with_state_words(table.snapshot(), history.config() if history else {})))
+
+    @app.get("/api/history")
+    def api_history(request: Request) -> Response:
+        if history is None:
+            return JSONResponse({"run_id": table.run_id, "started_at": None, "replay_capacity": None,
+                                 "eval": {"rows": 0, "series": {}}, "learner": {"rows": 0, "series": {}}})
+        return _cached_json(request, encoded, *history.history())
+
+    @app.get("/api/episodes")
+    def api_episodes(request: Request) -> Response:
+        if episodes is None:
+            return JSONResponse({"available": False, "weights_version": None, "cameras": [], "episodes": [],
+                                 "errors": []})
+        return _cached_json(request, encoded, *episodes.episodes())
+
+    @app.get("/api/episodes/frame/{name}/{camera}/{index:int}.png")
+    def api_frame(name: str, camera: str, index: int) -> Response:
+        png = episodes.frame_png(name, camera, index) if episodes else None
+        if png is None:
+            return PlainTextResponse("no such frame", status_code=404)
+        return Response(png, media_type="image/png", headers={"Cache-Control": "max-age=86400"})
+
+    @app.get("/api/qattention")
+    def api_qattention(request: Request) -> Response:
+        if attention is None:
+            return JSONResponse({"available": False, "reason": "the dashboard was started without a run directory"})
+        return _cached_json(request, encoded, *attention.latest())
 
     @app.get("/healthz")
     async def healthz() -> JSONResponse:
@@ -52,6 +105,19 @@ def create_app(table: RoleTable, refresh_ms: int = 1000) -> FastAPI:
         return HTMLResponse(page)
 
     return app
+
+
+def _cached_json(request: Request, encoded: FileCache, body: dict, etag: str) -> Response:
+    """``body`` as JSON with its ETag (encoded once per ETag), or a bodiless 304 when the client holds it."""
+    headers = {"ETag": etag, "Cache-Control": "no-cache"}
+    if request.headers.get("if-none-match") == etag:
+        return Response(status_code=304, headers=headers)
+    data = encoded.get(etag, lambda: json.dumps(json_safe(body), separators=(",", ":"), allow_nan=False).encode())
+    return Response(data, media_type="application/json", headers=headers)
+
+
+def _html(text: str) -> str:
+    return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
 
 
 def prometheus_text(snapshot: dict) -> str:

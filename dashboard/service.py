@@ -22,7 +22,7 @@ def run(config: DashboardConfig, ctx: RoleContext) -> int:
     table = RoleTable(ctx.run_id, gone_after_s=config.gone_after_s)
     server = uvicorn.Server(
         uvicorn.Config(
-            create_app(table, refresh_ms=config.refresh_ms),
+            create_app(table, refresh_ms=config.refresh_ms, run_dir=ctx.run_dir),
             host=config.host,
             port=config.port,
             log_level="warning",
