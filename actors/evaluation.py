@@ -91,6 +91,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
     latest: EvalResult | None = None
     csv_path = ctx.run_dir / "metrics" / "eval.csv"
     csv_path.parent.mkdir(parents=True, exist_ok=True)
+    board = _tensorboard(ctx.run_dir / "tensorboard") if config.eval_tensorboard else None
 
     def counters() -> dict[str, float]:
         if latest is None:
@@ -125,10 +126,17 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return,
                                 unreachable)
             _append_csv(csv_path, latest)
+            if board is not None:
+                for name, value in (("success_rate", success), ("mean_return", mean_return),
+                                    ("unreachable_rate", unreachable)):
+                    board.add_scalar(f"eval/{name}", value, update.learner_step)
+                board.flush()
             log.info("weights v%d (step %d, %d env steps): success %.0f%% over %d episodes",
                      update.version, update.learner_step, update.env_steps, 100 * success, n)
             heartbeat.publish()
     finally:
+        if board is not None:
+            board.close()
         heartbeat.close()
         follower.close()
         session.close()
@@ -147,6 +155,17 @@ def write_snapshot(directory: Path, policy: ActingPolicy, first: Rollout, task: 
         save_snapshot(directory / FILENAME, compute_snapshot(policy.agent, first.observations[0], action, meta=meta))
     except Exception:  # the dashboard's picture must never stop an evaluation
         log.exception("could not write the Q-attention snapshot")
+
+
+def _tensorboard(directory: Path):
+    """A SummaryWriter in the learner's TensorBoard directory (its own event file), or None."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+
+        return SummaryWriter(str(directory), filename_suffix=".eval")
+    except Exception:  # TensorBoard missing or the directory unwritable: the CSV still has it all
+        log.exception("no TensorBoard for evaluations")
+        return None
 
 
 def _append_csv(path: Path, result: EvalResult) -> None:

@@ -91,9 +91,14 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
             assert status()["learner"]["counters"]["weights_version"] >= version_before  # versions never go back
             # the console's progress line (every 5 s here), from the dashboard's summary
             wait_for(lambda: any("progress: updates" in l for l in lines), 60, "a progress line on the console")
+            # the evaluator has evaluated a version (eval.csv and TensorBoard get it)
+            wait_for(lambda: (s := status()) and s.get("eval", {}).get("counters", {}).get("eval_version", 0) >= 1,
+                     300, "an evaluation")
 
         stop_launcher(launcher, children)
     finally:
         kill_launcher(launcher, children)
 
     assert (run_dir / "metrics" / "learner.csv").exists()
+    assert (run_dir / "metrics" / "eval.csv").exists()
+    assert list((run_dir / "tensorboard").glob("events.out.tfevents.*.eval")), "no evaluation scalars in TensorBoard"
