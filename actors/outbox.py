@@ -17,6 +17,7 @@ import logging
 import threading
 import time
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import zenoh
 
@@ -26,6 +27,15 @@ from protocol.episode import Episode
 from protocol.messages import AckStatus, EpisodeAck, decode, encode
 
 log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Pending:
+    """An episode sent and not yet acknowledged."""
+
+    payload: bytes
+    digest: str  #: payload_digest(payload): the one an ack must name
+    sent: float  #: monotonic time of the last send
 
 
 class Outbox:
@@ -39,8 +49,7 @@ class Outbox:
         self._publisher = session.declare_publisher(
             keys.episodes(run_id, actor_id), congestion_control=zenoh.CongestionControl.BLOCK
         )
-        self._pending: OrderedDict[int, tuple[bytes, float]] = OrderedDict()  # episode id -> (payload, last sent)
-        self._digests: dict[int, str] = {}  # episode id -> payload digest, for the pending ones
+        self._pending: OrderedDict[int, _Pending] = OrderedDict()  # episode id -> what waits for its ack
         self._cond = threading.Condition()
         self._sn = itertools.count()  # source sequence numbers: the replay binds our id to this session
         self.counters = {"sent": 0, "acked": 0, "duplicates": 0, "rejected": 0, "resent": 0, "dropped": 0,
@@ -72,11 +81,9 @@ class Outbox:
         with self._cond:
             while len(self._pending) >= self._size and not self._stopping:
                 dropped, _ = self._pending.popitem(last=False)
-                self._digests.pop(dropped, None)
                 self.counters["dropped"] += 1
                 log.warning("outbox full for %.0f s: dropped episode %d unacknowledged", self._wait, dropped)
-            self._pending[episode.episode_id] = (payload, time.monotonic())
-            self._digests[episode.episode_id] = payload_digest(payload)
+            self._pending[episode.episode_id] = _Pending(payload, payload_digest(payload), time.monotonic())
         self._put(payload)
         self.counters["sent"] += 1
 
@@ -92,11 +99,11 @@ class Outbox:
         """Resend every episode unacknowledged for longer than ``resend_after_s``; returns how many."""
         now = time.monotonic()
         with self._cond:
-            due = [(eid, p) for eid, (p, sent) in self._pending.items() if now - sent >= self._resend_after]
-            for eid, payload in due:
-                self._pending[eid] = (payload, now)
-        for _, payload in due:
-            self._put(payload)
+            due = [entry for entry in self._pending.values() if now - entry.sent >= self._resend_after]
+            for entry in due:
+                entry.sent = now
+        for entry in due:
+            self._put(entry.payload)
         self.counters["resent"] += len(due)
         return len(due)
 
@@ -125,17 +132,17 @@ class Outbox:
             self.counters["unmatched_acks"] += 1
             return
         with self._cond:
-            expected = self._digests.get(ack.episode_id)
-            if expected is None:  # not pending (any more): e.g. the second ack of a resend
+            entry = self._pending.get(ack.episode_id)
+            if entry is None:  # not pending (any more): e.g. the second ack of a resend
                 self.counters["unmatched_acks"] += 1
                 return
-            if ack.digest != expected:
+            if ack.digest != entry.digest:
                 self.counters["forged_acks"] += 1
                 if self.counters["forged_acks"] <= 3 or self.counters["forged_acks"] % 100 == 0:
                     log.warning("ignored an ack for episode %d that names another payload (%d so far)",
                                 ack.episode_id, self.counters["forged_acks"])
                 return
-            del self._pending[ack.episode_id], self._digests[ack.episode_id]
+            del self._pending[ack.episode_id]
             self._cond.notify_all()
         if ack.status is AckStatus.STORED:
             self.counters["acked"] += 1

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+import psutil
 import zenoh
 import zmq
 
@@ -36,6 +37,7 @@ if str(REPO) not in sys.path:
 
 from protocol import keys  # noqa: E402
 from protocol.episode import Episode  # noqa: E402
+from protocol.fabric import FabricConfig, open_session  # noqa: E402
 from protocol.messages import (  # noqa: E402
     AckStatus, EpisodeAck, PriorityUpdate, SampleRequest, Status, WeightsUpdate, decode, encode, encode_unchecked,
 )
@@ -208,9 +210,7 @@ def accounting(before: dict, after: dict, sent: Counter) -> list[dict]:
 
 
 def main() -> None:
-    from bench_reliability import Run  # noqa: PLC0415 (a sibling script)
-
-    import psutil
+    from bench_reliability import Run  # noqa: PLC0415 (a sibling script, found when run as a script)
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rounds", type=int, default=40, help="rounds of every hostile kind")
@@ -223,8 +223,6 @@ def main() -> None:
             rows = run.wait(lambda: (r := run.rows()) and all(r.get(n, {}).get("alive") for n in roles)
                             and r["learner"]["counters"].get("updates", 0) >= 2 and r, 600)
             assert rows, "the run did not start"
-            from protocol.fabric import FabricConfig, open_session  # noqa: PLC0415
-
             endpoint = f"tcp/127.0.0.1:{run.ports[0]}"
             session = open_session(FabricConfig(connect=[endpoint], listen=[endpoint]))
             cap = capture(session, "reliability")
@@ -251,7 +249,8 @@ def main() -> None:
                 "replay_impersonation_rejected": after["replay"]["counters"].get("ingest_rejected_impersonation", 0),
             }
         finally:
-            run.stop() if run.proc.poll() is None else None
+            if run.proc.poll() is None:
+                run.stop()
             if run.proc.poll() is None:
                 os.killpg(run.proc.pid, signal.SIGKILL)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

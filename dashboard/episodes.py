@@ -10,14 +10,15 @@ define it), together with a 5 cm axis triad of its orientation. Frames are serve
 
 from __future__ import annotations
 
+import io
 import re
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from actors.demos.mcap_io import DemoFileError, EpisodeView, read_episode_view
 from dashboard.filecache import CsvTail, FileCache, stamp
-from dashboard.png import encode_png
 
 EPISODE_FILE = re.compile(r"^v(\d{6,})-seed(\d+)\.mcap$")
 AXIS_LENGTH_M = 0.05
@@ -155,3 +156,13 @@ def quaternion_matrix(q) -> np.ndarray:
         [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
         [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)],
     ])
+
+
+def encode_png(rgb: np.ndarray) -> bytes:
+    """uint8 [H, W, 3] camera frame -> PNG bytes."""
+    image = np.ascontiguousarray(rgb, dtype=np.uint8)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"expected an [H, W, 3] image, got shape {image.shape}")
+    out = io.BytesIO()
+    Image.fromarray(image, "RGB").save(out, format="PNG")
+    return out.getvalue()

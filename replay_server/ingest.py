@@ -48,11 +48,13 @@ class Received:
     raw: Optional[bytes]
     size: int
     head: bytes = b""  #: the start of an oversized payload
-    digest: str = ""  #: payload_digest of the whole payload (every ack names it)
+    digest: str = ""  #: payload_digest of the whole payload (every ack names it); set at once only when oversized
 
-    def __post_init__(self):
-        if not self.digest and self.raw is not None:
+    def payload_digest(self) -> str:
+        """Hashed on first use, in the ingest thread (not in Zenoh's callback)."""
+        if not self.digest:
             self.digest = payload_digest(self.raw)
+        return self.digest
 
 
 @dataclass
@@ -199,7 +201,7 @@ class Ingest:
             self.rejected.count("key_mismatch", f"episode of {ep.actor_id[:130]!r} on the key of {item.actor!r}",
                                 sender=item.actor)
             return None
-        digest = item.digest
+        digest = item.payload_digest()
         with state.store_lock:
             dup = state.store.is_duplicate(ep.actor_id, ep.episode_id, digest)
             conflict = not dup and state.store.is_id_conflict(ep.actor_id, ep.episode_id, digest)
@@ -249,7 +251,7 @@ class Ingest:
             return
         actor, eid = fields.get("actor_id"), fields.get("episode_id")
         if actor == item.actor and isinstance(eid, int) and not isinstance(eid, bool) and 0 <= eid < 2**63:
-            acks.append(EpisodeAck(actor, eid, AckStatus.REJECTED, detail[:500], item.digest))
+            acks.append(EpisodeAck(actor, eid, AckStatus.REJECTED, detail[:500], item.payload_digest()))
 
     def _publish_ack(self, ack: EpisodeAck) -> None:
         try:

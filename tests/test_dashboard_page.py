@@ -264,9 +264,9 @@ return [ink, c.width * c.height];
 """
 
 
-@pytest.mark.skipif(not (os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER)),
-                    reason="needs Debian's chromium and chromium-driver (.ci/run installs them)")
 def test_the_page_in_headless_chromium(served, tmp_path):
+    missing = [path for path in (CHROMIUM, CHROMEDRIVER) if not os.path.exists(path)]
+    assert not missing, f"{missing} missing: install Debian's chromium and chromium-driver (.ci/run does)"
     from selenium.webdriver.support.ui import WebDriverWait
 
     base, _ = served

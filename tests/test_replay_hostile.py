@@ -14,10 +14,11 @@ import pytest
 import zenoh
 import zmq
 
+from conftest import get_free_port, wait_for
 from protocol import keys
 from protocol.codec import encode_frame
 from protocol.fabric import FabricConfig, open_session
-from protocol.messages import EpisodeAck, Kind, decode, encode
+from protocol.messages import EpisodeAck, Kind, decode, encode, encode_unchecked
 from protocol.role import RoleContext
 from protocol.sample_wire import ReplayClient, ReplayError, parse_batch
 from replay_server.config import ReplayConfig
@@ -29,43 +30,17 @@ from replay_server.testing import synthetic_episode
 SIZE = 8
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_until(pred, timeout=20.0, what="condition"):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = pred()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def raw_episode(ep) -> bytes:
-    """Encode without encode()'s validation, as a buggy or hostile sender would."""
-    fields = {"actor_id": ep.actor_id, "episode_id": ep.episode_id, "task": ep.task, "seed": ep.seed,
-              "is_demo": ep.is_demo, "success": ep.success, "timeout": ep.timeout, "info": ep.info}
-    arrays = {f"obs/{k}": v for k, v in ep.observations.items()} | {
-        "step/actions": ep.actions, "step/rewards": ep.rewards, "step/terminals": ep.terminals,
-        "step/policy_versions": ep.policy_versions}
-    return encode_frame(Kind.EPISODE, fields, arrays)
-
-
 class Replay:
     """A router session (the test's), a replay service on its own client session, an ack listener."""
 
     def __init__(self, tmp_path, run_id: str, **settings):
         self.run_id = run_id
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.endpoint = f"tcp/127.0.0.1:{get_free_port()}"
         self.router = open_session(FabricConfig(listen=[self.endpoint], shared_memory=False), "router")
         self.acks: list[tuple[str, EpisodeAck]] = []
         self._lock = threading.Lock()
         self._sub = self.router.declare_subscriber(f"c2farm/{run_id}/acks/**", self._on_ack)
-        config = ReplayConfig(**({"zmq_endpoint": f"tcp://127.0.0.1:{free_port()}", "min_size_to_sample": 1,
+        config = ReplayConfig(**({"zmq_endpoint": f"tcp://127.0.0.1:{get_free_port()}", "min_size_to_sample": 1,
                                   "checkpoint_interval_s": 0, "checkpoint_on_stop": False, "wal_fsync": False,
                                   "checkpoint_dir": str(tmp_path / "replay"), "status_interval_s": 0.5,
                                   "seed": 1} | settings))
@@ -75,7 +50,7 @@ class Replay:
         self.service.start()
         self.zmq = self.service.zmq_endpoint
         probe = self.router.declare_publisher(keys.episodes(run_id, "probe"))
-        wait_until(lambda: probe.matching_status, 30, "the replay's subscription to reach the router")
+        wait_for(lambda: probe.matching_status, 30, "the replay's subscription to reach the router")
         probe.undeclare()
 
     def client_session(self) -> zenoh.Session:
@@ -98,7 +73,7 @@ class Replay:
 
     def wait(self, pred, timeout=20.0):
         try:
-            return wait_until(lambda: pred(c := self.c()) and c, timeout, "replay counters")
+            return wait_for(lambda: pred(c := self.c()) and c, timeout, "replay counters")
         except AssertionError:
             interesting = {k: v for k, v in self.c().items() if v and not k.startswith(("capacity", "last_"))}
             raise AssertionError(f"counter condition not met in {timeout}s: {interesting}") from None
@@ -174,17 +149,17 @@ def test_one_bad_episode_never_takes_its_group_down(make_replay):
     nan = synthetic_episode("a0", 2, size=SIZE)
     nan.observations["gripper_pose"][3, 1] = np.nan
     mismatch = synthetic_episode("other", 4, size=SIZE)
-    group = [encode(synthetic_episode("a0", 1, size=SIZE)), raw_episode(nan),
+    group = [encode(synthetic_episode("a0", 1, size=SIZE)), encode_unchecked(nan),
              encode(synthetic_episode("a0", 3, size=SIZE)), encode(mismatch), b"C2FA" + os.urandom(300),
              encode(synthetic_episode("a0", 5, size=SIZE))[:-7], encode(synthetic_episode("a0", 6, size=SIZE))]
     with paused_ingest(r):  # the whole group queues, and is then taken as one
         for payload in group:
             r.put("a0", payload)
-        wait_until(lambda: len(r.service.queue) == len(group), what="the group to queue")
+        wait_for(lambda: len(r.service.queue) == len(group), 20, "the group to queue")
     c = r.wait(lambda c: c["episodes_stored"] == 4 and c["rejected"] == 4)
     assert c["ingest_rejected_nonfinite"] == 1 and c["ingest_rejected_key_mismatch"] == 1
     assert c["ingest_rejected_decode"] == 2 and c["ingest_errors"] == 0
-    acks = wait_until(lambda: (a := r.acks_of("a0")) and len(a) >= 6 and a, what="acks")
+    acks = wait_for(lambda: (a := r.acks_of("a0")) and len(a) >= 6 and a, 20, "acks")
     assert [acks[e] for e in (0, 1, 3, 6)] == [["stored"]] * 4
     assert acks[2] == ["rejected"] and 5 in acks  # named, so told not to resend
     assert "other" not in {a.actor_id for _, a in r.acks}  # a mismatched episode is never acked
@@ -304,7 +279,7 @@ def test_wildcard_or_garbage_ids_never_get_an_ack(make_replay):
     for actor in ("*", "a0/x", "a$*"):  # a valid key, a payload claiming a wildcard id
         ep = synthetic_episode("a0", 1, size=SIZE)
         ep.actor_id = actor
-        r.put("a0", raw_episode(ep))
+        r.put("a0", encode_unchecked(ep))
     c = r.wait(lambda c: c["ingest_rejected_bad_id"] == 9)
     assert c["episodes_stored"] == 0
     r.put("a0", good)
@@ -325,10 +300,10 @@ def test_a_flooding_sender_does_not_starve_another(make_replay):
         with paused_ingest(r):  # the flood arrives faster than it can be stored
             for data in flood:
                 r.put("flood", data, session=flooder)
-            wait_until(lambda: r.c()["ingest_dropped_sender_quota"] >= 40, what="the flood to be throttled")
+            wait_for(lambda: r.c()["ingest_dropped_sender_quota"] >= 40, 20, "the flood to be throttled")
             for data in honest.values():
                 r.put("honest", data)
-            wait_until(lambda: r.service.queue.senders == 2, what="the honest sender to be queued")
+            wait_for(lambda: r.service.queue.senders == 2, 20, "the honest sender to be queued")
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:  # the honest actor resends what was not acked, as actors do
             missing = [e for e in honest if "stored" not in r.acks_of("honest").get(e, [])]
