@@ -71,3 +71,20 @@ def label_out_of_range_rows(arrays: dict[str, np.ndarray], voxel_size: int, dept
             names.append(name)
             rows |= bad
     return names, rows
+
+
+def nstep_out_of_range_rows(arrays: dict[str, np.ndarray]) -> tuple[list[str], np.ndarray]:
+    """(names of bad n-step arrays, bool [B] rows whose n-step fields do not describe a transition).
+
+    ``rewards`` [B, n] and ``bootstrap_steps`` [B] come together or not at all, and each
+    ``bootstrap_steps`` lies in 1..n: a zero would bootstrap from the observation itself, a
+    larger one discount by more steps than the rewards cover.
+    """
+    b = len(arrays["indices"])
+    rewards, steps = arrays.get("rewards"), arrays.get("bootstrap_steps")
+    if rewards is None and steps is None:
+        return [], np.zeros(b, bool)
+    if rewards is None or steps is None or rewards.ndim != 2 or rewards.shape[0] != b or steps.shape != (b,):
+        return ["rewards", "bootstrap_steps"], np.ones(b, bool)
+    bad = (steps < 1) | (steps > rewards.shape[1])
+    return (["bootstrap_steps"] if bad.any() else []), bad

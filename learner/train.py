@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from learner.acting_average import ActingAverage
-from learner.batch_guard import label_out_of_range_rows, nonfinite_rows
+from learner.batch_guard import label_out_of_range_rows, nonfinite_rows, nstep_out_of_range_rows
 from learner.checkpoint import NonFiniteState, load_latest, save_checkpoint
 from learner.config import LearnerConfig
 from learner.metrics import MetricsLog
@@ -157,6 +157,9 @@ class Learner:
             poisoned, bad = label_out_of_range_rows(arrays, self.qconfig.voxel_size, self.qconfig.depths,
                                                     self.qconfig.rotation_bins)
             reason = "act-time labels out of range"
+        if not poisoned:
+            poisoned, bad = nstep_out_of_range_rows(arrays)
+            reason = "n-step fields out of range"
         if poisoned:
             self.health["rejected_batches"] += 1
             if _worth_logging(self.health["rejected_batches"]):

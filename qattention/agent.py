@@ -127,7 +127,7 @@ class C2FARM:
         prop = batch.obs.proprioception(cfg.episode_length)
         outs, targets = [], []
         for d in range(cfg.depths):
-            y = td_target(batch.reward, batch.terminal, q_next[d], cfg)
+            y = td_target(batch.reward, batch.terminal, q_next[d], cfg, batch.n_rewards, batch.bootstrap_steps)
             centre = coords[:, d - 1] if d > 0 else None
             grid = voxelise(*gather_points(batch.obs, cams, centre, crop), bounds[:, d], v)
             with self._autocast():

@@ -6,7 +6,9 @@ Replay batches are dicts of named numpy arrays (protocol naming: ``{cam}_rgb``, 
 ``reward``, ``terminal``, ``is_demo``, ``weights``, ``policy_version``). Optional keys:
 ``scene_bounds`` [B, 6] (per-task depth-0 bounds; else the config's) and the act-time labels
 ``voxel_indices`` [B, D, 3], ``attention_coordinates`` [B, D, 3], ``rot_grip_indices`` [B, 4]
-returned by ``act`` (used for non-demo rows when present; demo rows are always relabelled).
+returned by ``act`` (used for non-demo rows when present; demo rows are always relabelled);
+and, for n-step transitions, ``rewards`` [B, n] and ``bootstrap_steps`` [B] (``*_tp1`` is then
+the observation ``bootstrap_steps`` decisions later).
 """
 
 from __future__ import annotations
@@ -103,6 +105,8 @@ class TransitionBatch:
     voxel_indices: torch.Tensor | None = None  #: long [B, D, 3] act-time choices (optional)
     attention_coordinates: torch.Tensor | None = None  #: float32 [B, D, 3] act-time cube centres (optional)
     rot_grip_indices: torch.Tensor | None = None  #: long [B, 4] act-time bins (optional)
+    n_rewards: torch.Tensor | None = None  #: float32 [B, n] rewards of an n-step transition, zero past its end (optional)
+    bootstrap_steps: torch.Tensor | None = None  #: long [B] decisions from obs to next_obs, 1..n (optional)
     extras: dict[str, torch.Tensor] = field(default_factory=dict)
 
     @property
@@ -126,4 +130,6 @@ class TransitionBatch:
             voxel_indices=opt("voxel_indices", torch.int64),
             attention_coordinates=opt("attention_coordinates", torch.float32),
             rot_grip_indices=opt("rot_grip_indices", torch.int64),
+            n_rewards=opt("rewards", torch.float32),
+            bootstrap_steps=opt("bootstrap_steps", torch.int64),
         )

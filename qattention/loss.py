@@ -31,10 +31,22 @@ def bootstrap_value(q_online, rg_online, q_target, rg_target, bins: int):
     return torch.stack(values, 1).float().mean(1), unflatten_index(a, v)
 
 
-def td_target(reward, terminal, q_next, config) -> torch.Tensor:
-    """y = max(r * reward_scale (negatives zeroed) + gamma * (1 - terminal) * q_next, 0)."""
-    r = (reward * config.reward_scale).clamp_min(0.0)
-    return (r + config.gamma * (~terminal).float() * q_next).clamp_min(0.0)
+def td_target(reward, terminal, q_next, config, n_rewards=None, bootstrap_steps=None) -> torch.Tensor:
+    """y = max(r * reward_scale (negatives zeroed) + gamma * (1 - terminal) * q_next, 0).
+
+    For n-step transitions (``n_rewards`` [B, n], ``bootstrap_steps`` m [B]) the reward is the
+    discounted sum of the n rewards (each scaled and floored at 0, zeros past the transition's
+    end) and the bootstrap is discounted by gamma ** m: a demo's first keyframe sees the task's
+    reward at once instead of after the target networks have carried it back one step at a time.
+    """
+    if n_rewards is None:
+        r = (reward * config.reward_scale).clamp_min(0.0)
+        discount = torch.full_like(r, config.gamma)
+    else:
+        powers = config.gamma ** torch.arange(n_rewards.shape[1], device=n_rewards.device, dtype=torch.float32)
+        r = ((n_rewards * config.reward_scale).clamp_min(0.0) * powers).sum(1)
+        discount = config.gamma ** bootstrap_steps.float()
+    return (r + discount * (~terminal).float() * q_next).clamp_min(0.0)
 
 
 @dataclass

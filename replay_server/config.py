@@ -39,6 +39,8 @@ class ReplayConfig:
     initial_priority: float = 1.0
     # Fraction of every batch drawn from demo transitions when the replay holds both demos and agent data; 0 = one proportional table over everything (the reference).
     demo_fraction: float = 0.0
+    # Serve n-step transitions: the next observation n decisions later (or at the episode's end) and the n rewards between; 1 = one-step (the reference).
+    n_step: int = 1
     # Minimum stored transitions before any batch is served.
     min_size_to_sample: int = 1_000
     # Target sampled transitions per inserted transition (Reverb SampleToInsertRatio); 0 disables.
@@ -123,6 +125,8 @@ class ReplayConfig:
         """Raise ValueError for a setting no replay can run with (also after ``apply_overrides``)."""
         if not 0.0 <= self.demo_fraction <= 1.0:
             raise ValueError(f"demo_fraction must be in [0, 1] (the demo share of each batch), got {self.demo_fraction}")
+        if not 1 <= self.n_step <= 64:
+            raise ValueError(f"n_step must be in 1..64 (decisions per return), got {self.n_step}")
         for name in ("max_batch_size", "max_batch_bytes", "max_pending_requests", "max_pending_per_client",
                      "max_request_bytes", "max_episode_steps", "max_episode_cameras", "max_episode_bytes",
                      "ingest_sender_queue_size", "ingest_sender_queue_bytes", "dedup_window", "dedup_max_actors"):

@@ -401,29 +401,46 @@ class EpisodeStore:
         )
 
     def gather(self, episodes: list[StoredEpisode], ts: np.ndarray) -> dict[str, np.ndarray]:
-        """Build the batch arrays (may run without the store lock: episodes are immutable)."""
+        """Build the batch arrays (may run without the store lock: episodes are immutable).
+
+        With ``n_step`` = n > 1 each row is an n-step transition: ``*_tp1`` is the observation
+        m = min(n, T - t) decisions later, ``rewards`` [B, n] the rewards in between (zeros past
+        the episode's end), ``bootstrap_steps`` [B] that m, and ``terminal``/``timeout`` those of
+        step t + m - 1; ``reward`` stays step t's own. The learner discounts with its gamma.
+        """
         b = len(episodes)
+        n = int(self.config.n_step)
+        ts = np.asarray(ts, dtype=np.int64)
+        steps = np.array([min(n, ep.num_steps - t) for ep, t in zip(episodes, ts)], dtype=np.int64)
+        nxt_t = ts + steps
+        last = nxt_t - 1  # the step whose terminal/timeout flags end this transition
         out: dict[str, np.ndarray] = {}
         assert self.schema is not None
         for name, (dtype, shape) in self.schema.items():
             cur = np.empty((b,) + shape, dtype=dtype)
             nxt = np.empty((b,) + shape, dtype=dtype)
             if episodes[0].frames and name in episodes[0].frames:
-                for i, (ep, t) in enumerate(zip(episodes, ts)):
+                for i, (ep, t, t1) in enumerate(zip(episodes, ts, nxt_t)):
                     blobs = ep.frames[name]
                     self.codec.decompress_into(blobs[t], cur[i])
-                    self.codec.decompress_into(blobs[t + 1], nxt[i])
+                    self.codec.decompress_into(blobs[t1], nxt[i])
             else:
-                for i, (ep, t) in enumerate(zip(episodes, ts)):
+                for i, (ep, t, t1) in enumerate(zip(episodes, ts, nxt_t)):
                     a = ep.arrays[name]
                     cur[i] = a[t]
-                    nxt[i] = a[t + 1]
+                    nxt[i] = a[t1]
             out[name] = cur
             out[name + "_tp1"] = nxt
         out["action"] = np.stack([ep.arrays["step/actions"][t] for ep, t in zip(episodes, ts)])
         out["reward"] = np.array([ep.arrays["step/rewards"][t] for ep, t in zip(episodes, ts)], dtype=np.float32)
-        out["terminal"] = np.array([ep.arrays["step/terminals"][t] for ep, t in zip(episodes, ts)], dtype=bool)
-        out["timeout"] = np.array([ep.timeout and t == ep.num_steps - 1 for ep, t in zip(episodes, ts)], dtype=bool)
+        out["terminal"] = np.array([ep.arrays["step/terminals"][t] for ep, t in zip(episodes, last)], dtype=bool)
+        out["timeout"] = np.array([ep.timeout and t == ep.num_steps - 1 for ep, t in zip(episodes, last)], dtype=bool)
+        if n > 1:
+            rewards = np.zeros((b, n), dtype=np.float32)
+            for i, (ep, t, m) in enumerate(zip(episodes, ts, steps)):
+                rewards[i, :m] = ep.arrays["step/rewards"][t : t + m]
+            out["rewards"] = rewards
+            out["bootstrap_steps"] = steps
         out["policy_version"] = np.array(
             [ep.arrays["step/policy_versions"][t] for ep, t in zip(episodes, ts)], dtype=np.int64
         )

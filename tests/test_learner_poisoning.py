@@ -128,6 +128,26 @@ def test_labels_for_another_depth_count_reject_the_batch(learner):
     assert metrics == {} and rows.tolist() == [0, 1]
 
 
+def with_n_step(a, steps=(1, 2, 3)):
+    """n-step fields as a replay with ``n_step=3`` serves them."""
+    a["rewards"] = np.zeros((len(a["indices"]), 3), np.float32)
+    a["bootstrap_steps"] = np.array(steps, np.int64)
+    return a
+
+
+@pytest.mark.parametrize("steps, bad_rows", [((1, 0, 3), [1]), ((4, 2, 3), [0])])
+def test_n_step_fields_that_describe_no_transition_are_rejected(learner, steps, bad_rows):
+    metrics, rows, prio = learner.train_step(with_n_step(arrays(3), steps))
+    assert metrics == {} and rows.tolist() == bad_rows and prio.tolist() == [0.0]
+
+    a = with_n_step(arrays(3))
+    del a["bootstrap_steps"]  # rewards without their step counts: every row is suspect
+    assert learner.train_step(a)[1].tolist() == [0, 1, 2]
+
+    metrics, rows, _ = learner.train_step(with_n_step(arrays(3)))  # well-formed n-step rows train
+    assert metrics["skipped_nonfinite"] == 0 and learner.step == 1 and len(rows) == 3
+
+
 def test_the_learner_counts_skipped_updates(learner):
     a = arrays(2)
     a["gripper_pose"][0, :3] = 3e38  # finite, but the network's output overflows

@@ -92,3 +92,19 @@ def test_actors_load_broadcast_weights():
     assert all(k.startswith("net.") for k in weights)
     actor.load_weights(load(save(weights)))
     assert np.array_equal(actor.act(b.obs).q_values, learner.act(b.obs).q_values)
+
+
+def test_n_step_targets_see_the_reward_n_decisions_ahead_at_once():
+    """A 3-keyframe demo: one-step targets of the first keyframe wait on bootstrapping, n-step ones do not."""
+    from qattention.loss import td_target
+
+    cfg = QAttentionConfig(gamma=0.9, reward_scale=0.01)
+    q_next = torch.tensor([0.5, 0.5, 0.5])
+    terminal = torch.tensor([True, False, False])
+    rewards = torch.tensor([[0.0, 0.0, 100.0], [0.0, 0.0, 0.0], [0.0, -100.0, 0.0]])
+    steps = torch.tensor([3, 3, 2])
+    y = td_target(rewards[:, 0], terminal, q_next, cfg, rewards, steps)
+    # reward two decisions on, episode over | nothing yet, bootstrap 3 ahead | negative reward floored, 2 ahead
+    assert torch.allclose(y, torch.tensor([0.9**2, 0.9**3 * 0.5, 0.9**2 * 0.5]))
+    one_step = td_target(rewards[:, 0], terminal, q_next, cfg)
+    assert torch.allclose(one_step, torch.tensor([0.0, 0.45, 0.45]))

@@ -129,6 +129,33 @@ def test_batch_is_bit_exact_for_every_compression():
         assert batch["timeout"].any() and batch["is_demo"].any()
 
 
+def test_n_step_transitions_reach_n_decisions_ahead_and_stop_at_the_episode_end():
+    for comp in ("none", "zstd"):
+        store = make_store(compression=comp, n_step=3)
+        eps = fill(store, 3, size=8, steps=5) + fill(store, 1, actor="b", size=8, steps=5, timeout=True)
+        by_key = {(actor_tag(e.actor_id), e.episode_id): e for e in eps}
+        _, _, _, _, sampled, ts = store.sample(64, np.random.default_rng(0), 0.5)
+        batch = store.gather(sampled, ts)
+        assert batch["rewards"].shape == (64, 3)
+        for i, (tag, eid, t) in enumerate(batch["extra_tag"]):
+            ep = by_key[(int(tag), int(eid))]
+            m = min(3, ep.num_steps - t)  # 5 steps: t = 3 sees 2 decisions, t = 4 one
+            assert batch["bootstrap_steps"][i] == m
+            assert tuple(batch["extra_tag_tp1"][i]) == (tag, eid, t + m)  # the observation m decisions on
+            assert batch["rewards"][i].tolist() == [*ep.rewards[t : t + m], *[0.0] * (3 - m)]
+            assert batch["reward"][i] == ep.rewards[t]
+            assert batch["terminal"][i] == ep.terminals[t + m - 1]
+            assert batch["timeout"][i] == (ep.timeout and t + m == ep.num_steps)
+        assert set(batch["bootstrap_steps"]) == {1, 2, 3}
+
+
+def test_one_step_batches_carry_no_n_step_fields():
+    store = make_store()
+    fill(store, 2, size=8)
+    _, _, _, _, sampled, ts = store.sample(8, np.random.default_rng(0), 0.5)
+    assert not {"rewards", "bootstrap_steps"} & set(store.gather(sampled, ts))
+
+
 def test_eviction_by_transitions_bytes_and_demo_keeping():
     store = make_store(capacity_transitions=50, keep_demos=True)
     fill(store, 2, actor="demo", is_demo=True)
