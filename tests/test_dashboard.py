@@ -9,7 +9,8 @@ import pytest
 import uvicorn
 
 from conftest import get_free_port, wait_for
-from dashboard.app import create_app, prometheus_text
+from dashboard.app import create_app
+from dashboard.metrics import prometheus_text
 from dashboard.registry import FabricFeed, RoleTable
 from protocol import Status, keys
 from protocol.fabric import open_session
@@ -60,9 +61,11 @@ def test_prometheus_text_names_every_instance():
     table.on_token("actor", "actor-0", True)
     table.on_status(status(counters={"episodes": 4, "policy lag": 2.5}))
     text = prometheus_text(table.snapshot())
-    assert 'c2farm_role_alive{run="run-1",role="actor",instance="actor-0"} 1' in text
-    assert 'c2farm_policy_lag{run="run-1",role="actor",instance="actor-0"} 2.5' in text
-    assert "# TYPE c2farm_episodes gauge" in text
+    assert 'c2farm_role_alive{instance="actor-0",role="actor",run="run-1"} 1.0' in text
+    assert "# TYPE c2farm_actor_episodes_total counter" in text
+    assert 'c2farm_actor_episodes_total{instance="actor-0",role="actor",run="run-1"} 4.0' in text
+    # a counter the catalogue does not know is still exported, marked as such
+    assert 'c2farm_undocumented{instance="actor-0",name="policy lag",role="actor",run="run-1"} 2.5' in text
 
 
 @pytest.fixture
@@ -88,17 +91,17 @@ def served_table():
 def test_http_endpoints(served_table):
     table, client = served_table
     table.on_token("replay", "replay", True)
-    table.on_status(status("replay", "replay", counters={"stored_transitions": 120}))
+    table.on_status(status("replay", "replay", counters={"size_transitions": 120}))
 
     body = client.get("/api/status").json()
     assert body["run_id"] == "run-1"
     [replay] = body["roles"]
-    assert replay["alive"] and replay["counters"]["stored_transitions"] == 120 and replay["pid"] == 11
+    assert replay["alive"] and replay["counters"]["size_transitions"] == 120 and replay["pid"] == 11
 
     assert client.get("/healthz").json() == {"ok": True, "run_id": "run-1", "alive": 1, "gone": 0}
     metrics = client.get("/metrics")
     assert metrics.headers["content-type"].startswith("text/plain")
-    assert "c2farm_stored_transitions" in metrics.text
+    assert 'c2farm_replay_stored_transitions{instance="replay",role="replay",run="run-1"} 120.0' in metrics.text
     page = client.get("/")
     assert page.status_code == 200 and "api/status" in page.text and "run-1" in page.text
 
@@ -119,9 +122,9 @@ def test_non_finite_counters_become_null_in_json_and_nan_in_prometheus(served_ta
     assert body["summary"]["weights_version"] is None and body["summary"]["policy_lag"] == {"actor-0": None}
     assert client.get("/healthz").status_code == 200
     metrics = client.get("/metrics").text
-    assert 'c2farm_loss_depth0{run="run-1",role="learner",instance="learner"} NaN' in metrics
-    assert 'c2farm_weights_version{run="run-1",role="learner",instance="learner"} +Inf' in metrics
-    assert 'c2farm_q{run="run-1",role="actor",instance="actor-0"} -Inf' in metrics
+    assert 'c2farm_learner_loss{depth="0",instance="learner",role="learner",run="run-1"} NaN' in metrics
+    assert 'c2farm_learner_weights_version{instance="learner",role="learner",run="run-1"} +Inf' in metrics
+    assert 'c2farm_undocumented{instance="actor-0",name="q",role="actor",run="run-1"} -Inf' in metrics
 
 
 def test_the_feed_sees_heartbeats_come_and_go_over_zenoh(router):
