@@ -93,12 +93,15 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
     csv_path.parent.mkdir(parents=True, exist_ok=True)
     board = _tensorboard(ctx.run_dir / "tensorboard") if config.eval_tensorboard else None
 
+    evaluations = 0
+
     def counters() -> dict[str, float]:
+        done = {"evaluations": evaluations, **follower.counters()}
         if latest is None:
-            return {"evaluations": 0, **follower.counters()}
-        return {"eval_success": latest.success_rate, "eval_return": latest.mean_return,
-                "eval_unreachable": latest.unreachable_rate, "eval_version": latest.weights_version,
-                "eval_env_steps": latest.env_steps, **follower.counters()}
+            return done
+        return {**done, "eval_success": latest.success_rate, "eval_episodes": latest.episodes,
+                "eval_return": latest.mean_return, "eval_unreachable": latest.unreachable_rate,
+                "eval_version": latest.weights_version, "eval_env_steps": latest.env_steps}
 
     heartbeat = Heartbeat(session, ctx.run_id, "eval", ctx.instance, counters=counters,
                           info=lambda: {"task": sim_config.task})
@@ -123,6 +126,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
                 write_snapshot(ctx.run_dir / "eval", policy, first[0], env.task_name, config.eval_seed, update)
             success, mean_return, unreachable, n = result
             evaluated_version = update.version
+            evaluations += 1
             latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return,
                                 unreachable)
             _append_csv(csv_path, latest)

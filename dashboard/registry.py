@@ -163,6 +163,7 @@ def summarise(roles: list[dict]) -> dict:
             if version is not None and "weights_version" in r["counters"]
         },
         "eval_success": evaluation.get("eval_success"),
+        "eval_episodes": evaluation.get("eval_episodes"),
         "eval_version": evaluation.get("eval_version"),
     }
 

@@ -34,6 +34,7 @@ from typing import IO, Optional
 from deploy.config import DEFAULT_INSTANCE, ONE_SHOT_ROLES, ROLES, RunConfig
 from deploy.endpoints import tcp_endpoints, wait_for_router
 from deploy.liveness import BEACON_ENV, PARENT_ENV, BeaconWatch, beacon_path
+from deploy.progress import progress_line
 
 
 @dataclass
@@ -68,6 +69,7 @@ class Launcher:
         self.stop = threading.Event()
         self._signals = 0
         self._progress_thread: Optional[threading.Thread] = None
+        self.started = time.monotonic()  #: when this launch began (the progress line's clock)
         self.children: list[Child] = []
         launch = config.launch
         for role in ROLES:
@@ -287,7 +289,7 @@ class Launcher:
             self._progress_thread.start()
 
     def _progress(self) -> None:
-        """One console line from the dashboard's summary: updates, env steps, replay, eval."""
+        """One console line from the dashboard's summary (progress.py)."""
         import httpx
 
         logging.getLogger("httpx").setLevel(logging.WARNING)
@@ -296,10 +298,9 @@ class Launcher:
             summary = httpx.get(url, timeout=10.0).json().get("summary") or {}  # a busy machine answers slowly
         except (httpx.HTTPError, ValueError, AttributeError):
             return
-        parts = [f"{key.replace('_', ' ')} {value:g}" if isinstance(value, (int, float)) else f"{key} {value}"
-                 for key, value in summary.items() if value is not None and key != "policy_lag"]
-        if parts:
-            self.say("progress: " + ", ".join(parts))
+        if summary:
+            elapsed = time.monotonic() - self.started
+            self.say("progress: " + progress_line(summary, elapsed, self.config.replay.min_size_to_sample))
 
     def _shutdown(self) -> None:
         """SIGTERM every role, the router once they are gone; SIGKILL all left at the deadline.

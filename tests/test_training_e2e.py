@@ -90,7 +90,8 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
                      180, "the resumed learner to keep updating")
             assert status()["learner"]["counters"]["weights_version"] >= version_before  # versions never go back
             # the console's progress line (every 5 s here), from the dashboard's summary
-            wait_for(lambda: any("progress: updates" in l for l in lines), 60, "a progress line on the console")
+            wait_for(lambda: any(re.search(r"progress: \S+ \| updates [\d,]+", l) for l in lines), 60,
+                     "a progress line on the console")
             # the evaluator has evaluated a version (eval.csv and TensorBoard get it)
             wait_for(lambda: (s := status()) and s.get("eval", {}).get("counters", {}).get("eval_version", 0) >= 1,
                      300, "an evaluation")

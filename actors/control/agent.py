@@ -11,7 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.control.collision import CollisionWorld
 from actors.control.ik import IKSolver

@@ -9,7 +9,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.sim.scene import GRASP_LINK, HOME, add_table, load_panda, set_arm
 

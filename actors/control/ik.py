@@ -13,7 +13,7 @@ elbow/wrist configuration whose joint-space path sweeps the hand through nearby 
 from __future__ import annotations
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.control.collision import CollisionWorld
 from actors.control.limits import LOWER, UPPER

@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from actors.demos.generate import generate_demos
-from actors.sim.tasks import TASKS, UnknownTaskError
+from actors.sim.task_names import TASKS
 from protocol.observation import CAMERA_NAMES
 
 
@@ -36,6 +35,9 @@ def _non_negative(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from actors.demos.generate import generate_demos  # loads the simulator: not needed for --help
+    from actors.sim.tasks import UnknownTaskError
+
     cameras = tuple(c for c in args.cameras.split(",") if c)
     try:
         s = generate_demos(args.task, args.episodes, args.seed, args.out, cameras=cameras,

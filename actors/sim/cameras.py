@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from protocol.observation import CameraFrame
 

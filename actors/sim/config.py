@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from actors.sim.task_names import DEFAULT_TASK
 from protocol.observation import CAMERA_NAMES
 
 
@@ -11,7 +12,7 @@ from protocol.observation import CAMERA_NAMES
 class SimConfig:
     """What an actor's PyBullet world looks like and how it executes next-best poses."""
 
-    task: str = "reach_target"  #: task name, one of ``actors.sim.tasks.TASKS``
+    task: str = DEFAULT_TASK  #: task name, one of ``actors.sim.task_names.TASKS``
     cameras: tuple[str, ...] = ("front",)  #: cameras rendered into each observation, any subset of CAMERA_NAMES
     image_size: int = 128  #: square image side in pixels (RLBench/C2F-ARM use 128)
     episode_length: int | None = None  #: next-best-pose decisions per episode; None = the task's own length

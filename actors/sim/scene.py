@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 import pybullet_data
 
 from actors.sim import shapes

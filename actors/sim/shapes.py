@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import pybullet as p
+from actors.sim.bullet import p
 
 #: RLBench-style colour list (a subset of its 20 named colours), RGBA.
 COLOURS: dict[str, tuple[float, float, float, float]] = {

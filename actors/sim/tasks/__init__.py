@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from actors.sim.task_names import TASKS
 from actors.sim.tasks.base import DEFAULT_BOUNDS, Task, Waypoint
 from actors.sim.tasks.lift_lid import LiftLid
 from actors.sim.tasks.open_drawer import OpenDrawer
@@ -14,8 +15,8 @@ from actors.sim.tasks.stack_wine import StackWine
 
 _REGISTRY: dict[str, type[Task]] = {t.name: t for t in (
     ReachTarget, PushButton, PickAndLift, LiftLid, OpenDrawer, PutInBin, StackWine, PutItemInDrawer)}
-#: Task names, easiest first.
-TASKS: tuple[str, ...] = tuple(_REGISTRY)
+if tuple(_REGISTRY) != TASKS:  # task_names.py is what the command line shows before pybullet loads
+    raise ImportError(f"actors/sim/task_names.py lists {TASKS}, the registry holds {tuple(_REGISTRY)}")
 
 
 class UnknownTaskError(ValueError):

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.sim.scene import PandaScene
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.sim import shapes
 from actors.sim.tasks.base import Task, top_down, waypoint

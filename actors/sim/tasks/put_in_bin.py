@@ -6,7 +6,7 @@ Success needs the rubbish inside the bin AND nothing grasped, so the release is 
 from __future__ import annotations
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.sim import shapes
 from actors.sim.tasks.base import Task, sample_positions, top_down, waypoint

@@ -6,7 +6,7 @@ Long horizon (8 keyframes), and once the block is in the drawer the front camera
 from __future__ import annotations
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.sim import shapes
 from actors.sim.tasks import drawer_chest as chest

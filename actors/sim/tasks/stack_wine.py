@@ -6,7 +6,7 @@ The 90 degree re-orientation is the point: the rotation bins of the last Q-atten
 from __future__ import annotations
 
 import numpy as np
-import pybullet as p
+from actors.sim.bullet import p
 
 from actors.sim import shapes
 from actors.sim.tasks.base import Task, horizontal, top_down, waypoint, yaw_rotate
