@@ -7,7 +7,8 @@
   outcomes), frames at ``/api/episodes/frame/<file>/<camera>/<index>.png``;
 - ``GET /api/qattention``: the latest Q-attention snapshot (voxels, top-Q voxels, chosen pose);
 - ``GET /healthz``: liveness of the dashboard itself;
-- ``GET /metrics``: the role counters in Prometheus text format;
+- ``GET /metrics``: the role counters in Prometheus text format, typed, with HELP and base
+  units (:mod:`dashboard.metrics`, names in :mod:`dashboard.metrics_catalog`);
 - ``GET /``: the page (static/app.js, vendored uPlot and three.js: no network needed).
 
 The file-backed answers only read files the roles write anyway, are memoised on the files'
@@ -17,16 +18,16 @@ work to the learner or the actors. The JSON shapes are documented in README.md (
 Counters are whatever the roles report, NaN and inf included. JSON has no spelling for
 those (Starlette refuses them with an HTTP 500), so every JSON answer maps a non-finite
 float to null; /metrics keeps them as Prometheus spells them (``NaN``, ``+Inf``, ``-Inf``),
-since a NaN loss is worth seeing. /healthz is about the dashboard only: a learner that
-skips non-finite updates shows it in its own counters (``skipped_updates``,
-``rejected_batches``), not as an unhealthy dashboard.
+since a NaN loss is worth seeing. /metrics leaves out rates (``*_per_s``) and ratios that
+PromQL computes from the exported counters; /api/status keeps them for the page. /healthz is
+about the dashboard only: a learner that skips non-finite updates shows it in its own counters
+(``skipped_updates``, ``rejected_batches``), not as an unhealthy dashboard.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import re
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -35,16 +36,15 @@ from fastapi import FastAPI, Request
 from fastapi.middleware.gzip import GZipMiddleware
 from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse, Response
 from fastapi.staticfiles import StaticFiles
+from prometheus_client import generate_latest
 
 from dashboard.attention import AttentionSnapshot
 from dashboard.episodes import EvalEpisodes
 from dashboard.filecache import FileCache
 from dashboard.history import RunHistory
+from dashboard.metrics import CONTENT_TYPE, metrics_registry
 from dashboard.registry import RoleTable
 from dashboard.roles import with_state_words
-
-_METRIC_NAME = re.compile(r"[^a-zA-Z0-9_]")
-
 
 def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | None = None) -> FastAPI:
     """The app for one run; ``run_dir`` (runs/<run_id>/) feeds the charts, episodes and Q-attention view."""
@@ -96,14 +96,18 @@ def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | N
         body = {"ok": True, "run_id": snap["run_id"], "alive": snap["alive"], "gone": snap["gone"]}
         return JSONResponse(json_safe(body))
 
+    registry = metrics_registry(table.snapshot)
+
     @app.get("/metrics")
-    async def metrics() -> PlainTextResponse:
-        return PlainTextResponse(prometheus_text(table.snapshot()), media_type="text/plain; version=0.0.4")
+    async def metrics() -> Response:
+        return Response(generate_latest(registry), media_type=CONTENT_TYPE)
 
     @app.get("/")
     async def index() -> HTMLResponse:
         return HTMLResponse(page)
 
+    from dashboard.operator import router as operator_routes  # POST /api/operator/<actor>/<action> (robot actors)
+    app.include_router(operator_routes)
     return app
 
 
@@ -120,39 +124,6 @@ def _html(text: str) -> str:
     return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
 
 
-def prometheus_text(snapshot: dict) -> str:
-    """Prometheus exposition format: one gauge per role counter, labelled by role/instance."""
-    run = _label(snapshot["run_id"])
-    lines = [
-        "# HELP c2farm_role_alive 1 while a role instance is alive, 0 once gone.",
-        "# TYPE c2farm_role_alive gauge",
-    ]
-    counters: dict[str, list[str]] = {}
-    for r in snapshot["roles"]:
-        labels = f'run="{run}",role="{_label(r["role"])}",instance="{_label(r["instance"])}"'
-        lines.append(f"c2farm_role_alive{{{labels}}} {int(r['alive'])}")
-        for name, value in sorted(r["counters"].items()):
-            metric = "c2farm_" + _METRIC_NAME.sub("_", name)
-            counters.setdefault(metric, []).append(f"{metric}{{{labels}}} {_number(value)}")
-    lines += [
-        "# HELP c2farm_role_last_seen_age_seconds Seconds since a role instance was last heard from.",
-        "# TYPE c2farm_role_last_seen_age_seconds gauge",
-    ]
-    for r in snapshot["roles"]:
-        if r["last_seen_age_s"] is not None:
-            labels = f'run="{run}",role="{_label(r["role"])}",instance="{_label(r["instance"])}"'
-            lines.append(f"c2farm_role_last_seen_age_seconds{{{labels}}} {_number(r['last_seen_age_s'])}")
-    lines += [
-        "# HELP c2farm_rejected_status_messages_total Malformed status messages the dashboard rejected.",
-        "# TYPE c2farm_rejected_status_messages_total counter",
-        f'c2farm_rejected_status_messages_total{{run="{run}"}} {snapshot["rejected_messages"]}',
-    ]
-    for metric, samples in sorted(counters.items()):
-        lines.append(f"# TYPE {metric} gauge")
-        lines += samples
-    return "\n".join(lines) + "\n"
-
-
 def json_safe(value: Any) -> Any:
     """``value`` with every non-finite float (at any depth) replaced by None, so it encodes as JSON."""
     if isinstance(value, float):
@@ -162,17 +133,3 @@ def json_safe(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
     return value
-
-
-def _number(value) -> str:
-    """A sample value as Prometheus writes it (``NaN``, ``+Inf``, ``-Inf`` for the non-finite)."""
-    value = float(value)
-    if math.isnan(value):
-        return "NaN"
-    if math.isinf(value):
-        return "+Inf" if value > 0 else "-Inf"
-    return repr(value)
-
-
-def _label(value: str) -> str:
-    return str(value).replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")

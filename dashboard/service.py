@@ -10,6 +10,7 @@ import uvicorn
 
 from dashboard.app import create_app
 from dashboard.config import DashboardConfig
+from dashboard.operator import OperatorPublisher
 from dashboard.registry import FabricFeed, RoleTable
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
@@ -20,9 +21,10 @@ log = logging.getLogger(__name__)
 
 def run(config: DashboardConfig, ctx: RoleContext) -> int:
     table = RoleTable(ctx.run_id, gone_after_s=config.gone_after_s)
+    app = create_app(table, refresh_ms=config.refresh_ms, run_dir=ctx.run_dir)
     server = uvicorn.Server(
         uvicorn.Config(
-            create_app(table, refresh_ms=config.refresh_ms, run_dir=ctx.run_dir),
+            app,
             host=config.host,
             port=config.port,
             log_level="warning",
@@ -30,6 +32,7 @@ def run(config: DashboardConfig, ctx: RoleContext) -> int:
         )
     )
     session = open_session(ctx.fabric)
+    app.state.operator = OperatorPublisher(session, ctx.run_id)  # the robot actors' buttons (dashboard/operator.py)
     feed = FabricFeed(session, ctx.run_id, table)
     heartbeat = Heartbeat(
         session,

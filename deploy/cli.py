@@ -20,6 +20,7 @@ from typing import Optional, Sequence
 from deploy.config_loader import ConfigError, parse_override
 from deploy.endpoints import free_port, loopback, wait_for_router
 from deploy.liveness import PARENT_ENV, start_beacon_from_env, watch_parent
+from actors.sim.task_names import DEFAULT_TASK, TASKS
 
 log = logging.getLogger("c2farm")
 
@@ -32,6 +33,7 @@ ROLE_HELP = {
     "eval": "run the evaluator (greedy policy on fixed seeds, once per weights version)",
     "demo_source": "publish the run's scripted demos to the replay (generating them if missing)",
     "dashboard": "run the HTTP dashboard (GET /, /api/status, /healthz, /metrics)",
+    "robot": "run a robot actor: a real arm (Franka via franky) or franky-sim, a person giving reward",
 }
 
 DESCRIPTION = """\
@@ -103,14 +105,24 @@ def _common(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="print the resolved config with a comment on every key, then exit",
     )
-    g.add_argument("--task", metavar="NAME", help="task every actor steps (sim.task), e.g. reach_target")
+    g.add_argument("--task", metavar="NAME",
+                   help=f"task every actor steps (sim.task): {', '.join(TASKS)} (default: {DEFAULT_TASK})")
     g.add_argument("--log-level", default="INFO", help="Python log level (default: %(default)s)")
+
+
+def _robot_flags(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("robot actor")
+    g.add_argument("--robot", choices=("franka", "franky-sim"), help="the arm (robot.arm); on launch, also starts a robot actor")
+    g.add_argument("--robot-host", metavar="HOST", help="the Franka's FCI address (robot.franka.host)")
+    g.add_argument("--camera", action="append", metavar="KIND[:SERIAL]",
+                   help="an RGB-D camera, e.g. realsense:123456 or mujoco (robot.cameras; repeatable, named "
+                   "front, left_shoulder, ... in order)")
 
 
 def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
     """The ``c2farm`` parser. ``demo_options=False`` leaves out the ``demos`` options, whose
     import pulls in the simulator: a role process (the router, the dashboard) starts faster."""
-    from deploy.config import DEFAULT_INSTANCE  # imports every role's config, torch included
+    from deploy.config import DEFAULT_INSTANCE, DEFAULT_ROLES  # imports every role's config
 
     parser = argparse.ArgumentParser(
         prog="c2farm", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -120,9 +132,10 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "launch",
         help="start every role on this machine and supervise them",
-        description="Start the Zenoh router, replay server, learner, N actors and the dashboard as "
-        "separate processes; stream their logs with a role prefix; restart actors that die; "
-        "stop everything on Ctrl-C / SIGTERM. Writes runs/<run-id>/config.yaml and versions.json.",
+        description="Start the Zenoh router, replay server, dashboard, learner, demo source, N actors "
+        "and the evaluator as separate processes; stream their logs with a role prefix; restart every "
+        "role that dies or goes silent (the demo source only if it failed); stop everything on "
+        "Ctrl-C / SIGTERM. Writes runs/<run-id>/config.yaml and versions.json.",
     )
     _common(p)
     p.add_argument("--actors", type=int, metavar="N", help="number of actor processes (launch.num_actors)")
@@ -130,7 +143,7 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
         "--roles",
         metavar="LIST",
         help="comma-separated roles to start here (launch.roles), e.g. 'actor' on an extra actor "
-        "machine with --connect tcp/HUB:7447; default: router,replay,learner,actor,dashboard",
+        f"machine with --connect tcp/HUB:7447; default: {','.join(DEFAULT_ROLES)} (--robot adds robot)",
     )
     p.add_argument(
         "--router-port",
@@ -138,6 +151,7 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
         metavar="PORT",
         help="shortcut: router listens on, and roles dial, tcp/127.0.0.1:PORT (0 picks a free port)",
     )
+    _robot_flags(p)
     p.add_argument("--dashboard-host", metavar="HOST", help="dashboard bind address (dashboard.host)")
     p.add_argument(
         "--dashboard-port", type=int, metavar="PORT", help="dashboard port (dashboard.port; 0 picks a free one)"
@@ -152,6 +166,8 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
             default=DEFAULT_INSTANCE[role],
             help="unique name of this process within its role (default: %(default)s)",
         )
+        if role == "robot":
+            _robot_flags(p)
         if role == "dashboard":
             p.add_argument("--host", metavar="HOST", help="bind address (dashboard.host, default 127.0.0.1)")
             p.add_argument("--port", type=int, metavar="PORT", help="HTTP port (dashboard.port, default 8080)")
@@ -165,6 +181,17 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
         from actors.demos.cli import add_arguments
 
         add_arguments(p)
+    p = sub.add_parser(
+        "robot-demos",
+        help="record demonstrations on the robot from the operator's waypoints (MCAP, as simulated demos)",
+        description="Drive the configured arm (robot.arm) through waypoints 'x y z [qx qy qz qw] open|close', "
+        "one per line, recording every demo into the run's demo folder, where the demo source sends it from.",
+    )
+    _common(p)
+    _robot_flags(p)
+    p.add_argument("--waypoints", metavar="FILE", help="waypoints file; default: type them in the terminal, "
+                   "an empty line ends")
+    p.add_argument("--episodes", type=int, metavar="N", help="demos to record (demos.episodes; the paper: 3 per real task)")
     return parser
 
 
@@ -177,6 +204,17 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
             out.setdefault(section, {})[key] = value
 
     put("sim", "task", args.task)
+    put("robot", "arm", getattr(args, "robot", None))
+    if getattr(args, "robot_host", None):
+        out.setdefault("robot", {}).setdefault("franka", {})["host"] = args.robot_host
+    if getattr(args, "camera", None):
+        from protocol.observation import CAMERA_NAMES
+
+        cams = []
+        for name, text in zip(CAMERA_NAMES, args.camera):
+            kind, _, serial = text.partition(":")
+            cams.append({"name": name, "kind": kind, "serial": serial})
+        put("robot", "cameras", cams)
     put("run", "run_id", args.run_id)
     put("run", "seed", args.seed)
     put("run", "runs_dir", args.runs_dir)
@@ -199,6 +237,13 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
     port = port if port is not None else getattr(args, "port", None)
     put("dashboard", "port", port)
     return [out] + [parse_override(text) for text in args.overrides]
+
+
+def with_robot_role(args: argparse.Namespace, config) -> None:
+    """``c2farm launch --robot ...`` also starts a robot actor (unless --roles said otherwise)."""
+    if args.command == "launch" and getattr(args, "robot", None) and getattr(args, "roles", None) is None:
+        if "robot" not in config.launch.roles:
+            config.launch.roles.append("robot")
 
 
 # -- running a role ----------------------------------------------------------------------
@@ -256,6 +301,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             files=tuple(args.config),
             overrides=tuple(overrides_from_args(args)),
         )
+        with_robot_role(args, config)
         if args.command == "launch" and config.run.run_id is None:
             config.run.run_id = _unique_run_id(cfg_mod, Path(config.run.runs_dir))
         if args.command == "launch" and "dashboard" in config.launch.roles and config.dashboard.port == 0:
@@ -263,6 +309,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if args.print_config:
             sys.stdout.write(cfg_mod.dump_yaml(config, docs=True))
             return 0
+        if args.command == "robot-demos":  # writes demo files, joins no run
+            return _robot_demos(args, config)
         if config.run.run_id is None:
             raise ConfigError(
                 "run.run_id: not set; every role of a run needs the same --run-id (`c2farm launch` prints it)"
@@ -289,6 +337,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except ValueError as exc:  # a bad instance name
         print(f"c2farm: {exc}", file=sys.stderr)
         return 2
+
+
+def _robot_demos(args, config) -> int:
+    """``c2farm robot-demos``: the operator's waypoints, recorded on the arm into the run's demo folder."""
+    from actors.robot.demos import read_waypoints, record_demos
+    from deploy.roles import demo_dir
+
+    if args.waypoints:
+        waypoints = read_waypoints(Path(args.waypoints).read_text().splitlines())
+    else:
+        print("waypoints, one per line: x y z [qx qy qz qw] open|close; an empty line ends", flush=True)
+        waypoints = read_waypoints(iter(lambda: sys.stdin.readline().rstrip("\n"), ""))
+    if not waypoints:
+        print("c2farm: no waypoints", file=sys.stderr)
+        return 2
+    written = record_demos(config, waypoints, args.episodes or config.demos.episodes, demo_dir(config))
+    print(f"{len(written)} robot demos in {demo_dir(config)}")
+    return 0
 
 
 def _unique_run_id(cfg_mod, runs_dir: Path) -> str:

@@ -27,6 +27,7 @@ from deploy.config_loader import ConfigError, field_docs, from_dict, load_yaml, 
 from protocol import keys
 from protocol.fabric import FabricConfig
 from actors.config import ActorConfig
+from actors.robot.config import RobotConfig
 from actors.sim.config import SimConfig
 from learner.config import LearnerConfig
 from qattention.config import QAttentionConfig
@@ -36,7 +37,9 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 PRESET_DIRS = (Path.cwd() / "configs", REPO_ROOT / "configs")
 DEFAULT_PRESET = "cpu-small"
 #: Every role, in the order the launcher starts them.
-ROLES = ("router", "replay", "dashboard", "learner", "demo_source", "actor", "eval")
+ROLES = ("router", "replay", "dashboard", "learner", "demo_source", "actor", "eval", "robot")
+#: Roles `c2farm launch` starts unless told otherwise (a robot actor only with --robot).
+DEFAULT_ROLES = tuple(r for r in ROLES if r != "robot")
 #: Roles that finish their job and exit; restarted only when they fail.
 ONE_SHOT_ROLES = ("demo_source",)
 #: role -> the instance name a role process gets unless told otherwise.
@@ -48,6 +51,7 @@ DEFAULT_INSTANCE = {
     "eval": "eval",
     "demo_source": "demos",
     "dashboard": "dashboard",
+    "robot": "robot-0",
 }
 
 
@@ -68,7 +72,7 @@ class RunSection:
 class LaunchConfig:
     """What `c2farm launch` starts on this machine and how it supervises it."""
 
-    roles: list[str] = field(default_factory=lambda: list(ROLES))  #: roles started here (others run elsewhere)
+    roles: list[str] = field(default_factory=lambda: list(DEFAULT_ROLES))  #: roles started here (others run elsewhere); add robot for a robot actor
     num_actors: int = 2  #: actor processes to start
     instance_prefix: str = ""  #: prepended to the instance names started here, e.g. "box3-" (unique per machine)
     restart: list[str] = field(  #: roles restarted when their process dies or goes silent (one-shot roles only on failure)
@@ -123,6 +127,7 @@ class RunConfig:
     learner: LearnerConfig = field(default_factory=LearnerConfig)  #: the learner
     actor: ActorConfig = field(default_factory=ActorConfig)  #: actors and the evaluator
     sim: SimConfig = field(default_factory=SimConfig)  #: the PyBullet Panda task every actor steps
+    robot: RobotConfig = field(default_factory=RobotConfig)  #: a real arm as one more actor (c2farm robot)
     demos: DemoConfig = field(default_factory=DemoConfig)  #: scripted demonstrations
     qattention: QAttentionConfig = field(default_factory=QAttentionConfig)  #: the C2F-ARM networks and loss (cameras, episode length and scene bounds come from sim)
 

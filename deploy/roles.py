@@ -99,6 +99,12 @@ def demo_source(config: RunConfig, ctx: RoleContext) -> int:
                depths=config.qattention.depths)
 
 
+def robot(config: RunConfig, ctx: RoleContext) -> int:
+    from actors.robot.actor import run, terminal_stream
+
+    return run(config.actor, config.robot, config.sim.task, network_config(config), ctx, terminal=terminal_stream())
+
+
 def dashboard(config: RunConfig, ctx: RoleContext) -> int:
     from dashboard.service import run
 
@@ -116,5 +122,6 @@ ROLES: dict[str, tuple[Callable[[RunConfig, RoleContext], int], str]] = {
         ("eval", evaluator),
         ("demo_source", demo_source),
         ("dashboard", dashboard),
+        ("robot", robot),
     )
 }

@@ -62,6 +62,11 @@ def alive(run: str, role: str = ANY, instance: str = ANY) -> str:
     return f"{_root(run)}/alive/{_part(role, 'role')}/{_part(instance, 'instance')}"
 
 
+def operator(run: str, actor: str = ANY) -> str:
+    """A person's commands (``OperatorCommand``) to one robot actor; the robot actor subscribes to its own."""
+    return f"{_root(run)}/operator/{_part(actor, 'actor', ('*',))}"
+
+
 def concrete(key: str) -> str:
     """``key`` itself if it names exactly one resource (no wildcard chunk), else ValueError.
 

@@ -44,6 +44,7 @@ class Kind(enum.IntEnum):
     SAMPLE_REQUEST = 5
     SAMPLE_BATCH = 6
     PRIORITY_UPDATE = 7
+    OPERATOR = 8
 
 
 class AckStatus(str, enum.Enum):
@@ -119,7 +120,28 @@ class PriorityUpdate:
     priorities: np.ndarray  #: float32 [B], already raised to the PER exponent
 
 
-Message = Union[Episode, EpisodeAck, WeightsUpdate, Status, SampleRequest, SampleBatch, PriorityUpdate]
+class OperatorAction(str, enum.Enum):
+    """What the person beside a real robot can say."""
+
+    SUCCESS = "success"  #: the task is done: reward, end the episode
+    FAIL = "fail"  #: the task went wrong: end the episode without reward
+    RESET_DONE = "reset_done"  #: the scene is set up again: the next episode may start
+    STOP = "stop"  #: halt the arm at once and pause the actor
+    RESUME = "resume"  #: the actor may move the arm again
+
+
+@dataclass
+class OperatorCommand:
+    """A person's word to one robot actor (dashboard button or terminal key)."""
+
+    actor: str  #: the robot actor's instance name
+    action: OperatorAction
+    seq: int = 0  #: the sender's running number, for the actor's log
+    time: float = 0.0  #: sender's wall clock, seconds since the epoch
+    source: str = ""  #: where it came from, e.g. "dashboard" or "terminal"
+
+
+Message = Union[Episode, EpisodeAck, WeightsUpdate, Status, SampleRequest, SampleBatch, PriorityUpdate, OperatorCommand]
 
 
 def encode(message: Message, limits: Limits = DEFAULT_LIMITS) -> bytes:
@@ -178,6 +200,10 @@ def encode_unchecked(message: Message) -> bytes:
     if isinstance(message, SampleBatch):
         fields = {"request_id": message.request_id, "error": message.error, "info": message.info}
         return encode_frame(Kind.SAMPLE_BATCH, fields, message.arrays)
+    if isinstance(message, OperatorCommand):
+        fields = {k: getattr(message, k) for k in OperatorCommand.__dataclass_fields__}
+        fields["action"] = getattr(message.action, "value", message.action)
+        return encode_frame(Kind.OPERATOR, fields, {})
     arrays = {"indices": message.indices, "keys": message.keys, "priorities": message.priorities}
     return encode_frame(Kind.PRIORITY_UPDATE, {}, arrays)
 
@@ -317,6 +343,17 @@ def _validate_priority_update(m: PriorityUpdate, limits: Limits) -> None:
         raise ProtocolError("priorities", "must be finite and >= 0")
 
 
+def _validate_operator(m: OperatorCommand, limits: Limits) -> None:
+    _check_id("actor", m.actor)
+    try:
+        OperatorAction(m.action)
+    except (ValueError, TypeError):
+        raise ProtocolError("action", f"unknown operator action {m.action!r:.80}") from None
+    check_int("seq", m.seq)
+    check_float("time", m.time, lo=0.0)
+    check_text("source", m.source, limits.max_text)
+
+
 _VALIDATORS = (
     (Episode, validate_episode),
     (EpisodeAck, _validate_ack),
@@ -325,6 +362,7 @@ _VALIDATORS = (
     (SampleRequest, _validate_sample_request),
     (SampleBatch, _validate_sample_batch),
     (PriorityUpdate, _validate_priority_update),
+    (OperatorCommand, _validate_operator),
 )
 
 
@@ -398,6 +436,18 @@ def _decode_priority_update(fields, arrays, limits) -> PriorityUpdate:
     return PriorityUpdate(arrays["indices"], arrays["keys"], arrays["priorities"])
 
 
+def _decode_operator(fields, arrays, limits) -> OperatorCommand:
+    check_keys(fields, tuple(OperatorCommand.__dataclass_fields__))
+    _no_arrays(arrays)
+    action = require(fields, "action", str)
+    try:
+        action = OperatorAction(action)
+    except ValueError:
+        raise ProtocolError("action", f"unknown operator action {action[:80]!r}") from None
+    return OperatorCommand(fields["actor"], action, fields["seq"], check_float("time", fields["time"], lo=0.0),
+                           fields["source"])
+
+
 _DECODERS = {
     Kind.EPISODE: (Episode, _decode_episode),
     Kind.ACK: (EpisodeAck, _decode_ack),
@@ -406,4 +456,5 @@ _DECODERS = {
     Kind.SAMPLE_REQUEST: (SampleRequest, _decode_sample_request),
     Kind.SAMPLE_BATCH: (SampleBatch, _decode_sample_batch),
     Kind.PRIORITY_UPDATE: (PriorityUpdate, _decode_priority_update),
+    Kind.OPERATOR: (OperatorCommand, _decode_operator),
 }

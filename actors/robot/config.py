@@ -1,0 +1,87 @@
+"""Typed settings of a robot actor: the arm, its safety limits and its cameras."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class SafetyConfig:
+    """Where the arm may be sent; a pose outside is refused and counted, never sent to the arm."""
+
+    workspace_min: tuple[float, float, float] = (0.2, -0.4, 0.0)  #: lower corner of the allowed grasp-frame box, metres, robot base frame
+    workspace_max: tuple[float, float, float] = (0.75, 0.4, 0.6)  #: upper corner of the allowed grasp-frame box, metres, robot base frame
+    table_height: float = 0.0  #: z of the table top, metres, robot base frame
+    table_clearance: float = 0.01  #: the grasp frame stays at least this far above the table top, metres
+    max_step: float = 0.5  #: longest straight-line move of the grasp frame in one decision, metres
+
+    def __post_init__(self) -> None:
+        self.workspace_min, self.workspace_max = tuple(self.workspace_min), tuple(self.workspace_max)
+        if len(self.workspace_min) != 3 or len(self.workspace_max) != 3:
+            raise ValueError("workspace_min and workspace_max need three values (x, y, z)")
+        if any(lo >= hi for lo, hi in zip(self.workspace_min, self.workspace_max)):
+            raise ValueError("workspace_min must be below workspace_max on every axis")
+        if self.max_step <= 0 or self.table_clearance < 0:
+            raise ValueError("max_step must be > 0 and table_clearance >= 0")
+
+
+@dataclass
+class FrankaConfig:
+    """How the Franka is driven through franky."""
+
+    host: str = "172.16.0.2"  #: the robot's FCI address (franky-sim: the loopback address it prints)
+    dynamics_factor: float = 0.1  #: fraction of the Panda's velocity, acceleration and jerk limits (franky relative_dynamics_factor), in (0, 1]
+    torque_threshold: float = 20.0  #: collision torque threshold, Nm (a contact above it stops the arm with a reflex)
+    force_threshold: float = 30.0  #: collision force threshold, N
+    reach_tolerance: float = 0.01  #: a move counts as reached when the grasp frame ends this close to the target, metres
+    move_timeout_s: float = 30.0  #: a move still running after this long is stopped and counted as failed
+    settle_timeout_s: float = 3.0  #: after a motion ends, wait at most this long for the arm to stand still before judging it
+    gripper_speed: float = 0.05  #: finger speed, m/s
+    gripper_force: float = 20.0  #: grasping force, N
+    still_speed: float = 0.01  #: the arm counts as standing still once every joint moves slower than this, rad/s (stop timing)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.dynamics_factor <= 1:
+            raise ValueError("dynamics_factor must be in (0, 1]")
+        if self.reach_tolerance <= 0 or self.move_timeout_s <= 0 or self.still_speed <= 0:
+            raise ValueError("reach_tolerance, move_timeout_s and still_speed must be > 0")
+
+
+@dataclass
+class CameraConfig:
+    """One RGB-D camera of the rig."""
+
+    name: str = "front"  #: the Observation's camera name (protocol.observation.CAMERA_NAMES)
+    kind: str = "realsense"  #: realsense, or mujoco (a render of franky-sim's scene; tests and benchmarks)
+    serial: str = ""  #: RealSense serial number; empty = the only one connected
+    image_size: int = 128  #: square side the frame is resized/cropped to, pixels (C2F-ARM uses 128)
+    extrinsics_file: str = ""  #: YAML with the camera-to-robot-base pose (see actors/robot/cameras.py); empty = the built-in pose of a mujoco camera
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("realsense", "mujoco"):
+            raise ValueError(f"camera kind {self.kind!r}: choose realsense or mujoco")
+        if self.image_size < 8:
+            raise ValueError("image_size must be >= 8")
+
+
+@dataclass
+class RobotConfig:
+    """A robot actor's arm, safety limits, cameras and episodes."""
+
+    arm: str = "franka"  #: franka (a real arm through franky), or franky-sim (franky-sim started inside the actor, on loopback)
+    home: tuple[float, ...] = (0.45, 0.0, 0.4, 1.0, 0.0, 0.0, 0.0)  #: grasp-frame pose (xyz + quaternion xyzw) the arm returns to before each episode
+    wait_for_reset: bool = True  #: wait for the operator's "reset done" before each episode
+    verdict_wait_s: float = 30.0  #: after the last decision, wait this long for the operator's success / fail; then a timeout (reward 0)
+    scripted_operator: bool = False  #: franky-sim only: a scripted success check (grasp frame within 2 cm of the target) stands in for the person
+    franka: FrankaConfig = field(default_factory=FrankaConfig)  #: the Franka through franky
+    safety: SafetyConfig = field(default_factory=SafetyConfig)  #: workspace box, table, step limit
+    cameras: list[CameraConfig] = field(default_factory=lambda: [CameraConfig()])  #: the RGB-D cameras, one per Observation camera
+
+    def __post_init__(self) -> None:
+        if self.arm not in ("franka", "franky-sim"):
+            raise ValueError(f"robot arm {self.arm!r}: choose franka or franky-sim")
+        self.home = tuple(float(v) for v in self.home)
+        if len(self.home) != 7:
+            raise ValueError("home needs 7 numbers: xyz + quaternion xyzw")
+        if self.scripted_operator and self.arm != "franky-sim":
+            raise ValueError("scripted_operator needs arm: franky-sim (it reads the simulated target)")

@@ -1,0 +1,46 @@
+"""`c2farm robot` / `c2farm launch --robot ...`: the flags become the typed robot config."""
+
+from __future__ import annotations
+
+import pytest
+
+from deploy.cli import build_parser, overrides_from_args, with_robot_role
+from deploy.config import DEFAULT_ROLES, load_config
+from deploy.config_loader import ConfigError
+
+
+def resolve(*argv: str, preset=None):
+    args = build_parser(demo_options=False).parse_args(list(argv))
+    config = load_config(preset=preset, overrides=tuple(overrides_from_args(args)))
+    with_robot_role(args, config)
+    return config
+
+
+def test_launch_with_a_robot_adds_the_robot_role():
+    config = resolve("launch", "--robot", "franky-sim", "--camera", "mujoco")
+    assert config.launch.roles == [*DEFAULT_ROLES, "robot"]
+    assert config.robot.arm == "franky-sim"
+    assert [(c.name, c.kind) for c in config.robot.cameras] == [("front", "mujoco")]
+
+
+def test_the_robot_preset_keeps_its_roles_and_takes_three_demos():
+    config = resolve("launch", "--robot", "franka", "--robot-host", "172.16.0.2", preset="robot")
+    assert config.launch.roles == ["router", "replay", "dashboard", "learner", "demo_source", "robot"]
+    assert config.demos.episodes == 3
+
+
+def test_a_plain_launch_starts_no_robot():
+    assert "robot" not in resolve("launch").launch.roles
+
+
+def test_robot_flags_name_the_arm_and_the_cameras():
+    config = resolve("robot", "--run-id", "r1", "--robot", "franka", "--robot-host", "172.16.0.2",
+                     "--camera", "realsense:123", "--camera", "realsense:456")
+    assert config.robot.franka.host == "172.16.0.2"
+    assert [(c.name, c.kind, c.serial) for c in config.robot.cameras] == [
+        ("front", "realsense", "123"), ("left_shoulder", "realsense", "456")]
+
+
+def test_a_scripted_operator_needs_the_simulated_arm():
+    with pytest.raises(ConfigError, match="scripted_operator"):
+        resolve("robot", "--run-id", "r1", "--robot", "franka", "--set", "robot.scripted_operator=true")

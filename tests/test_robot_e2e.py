@@ -1,0 +1,83 @@
+"""A real robot is one more actor: router, replay, learner, dashboard and a robot actor on franky-sim.
+
+Every role is a real process started by ``c2farm launch --robot franky-sim --camera mujoco``: the
+robot actor drives franky-sim through franky over libfranka's protocol and sees the scene through
+the MuJoCo RGB-D stand-in. The test is the person: it says "reset done", "success" and "fail"
+through the dashboard's HTTP API. Episodes reach the replay, the learner trains on them, and the
+robot actor follows newer weights. The learner and the replay are the unchanged roles.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import httpx
+import pytest
+
+from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, stop_launcher, wait_for
+
+pytest.importorskip("franky")
+pytest.importorskip("franky_sim")
+
+
+@pytest.mark.timeout(900)
+def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
+    ports = {name: get_free_port() for name in ("router", "dashboard", "zmq")}
+    launcher = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "launch", "--run-id", "robot-e2e", "--runs-dir", str(tmp_path / "runs"),
+         "--router-port", str(ports["router"]), "--dashboard-port", str(ports["dashboard"]),
+         "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{ports['zmq']}",
+         "--robot", "franky-sim", "--camera", "mujoco", "--roles", "router,replay,dashboard,learner,robot",
+         "--task", "reach_target", *TINY_TRAINING,
+         "--set", "robot.franka.dynamics_factor=0.5", "--set", "robot.verdict_wait_s=1",
+         "--set", "actor.weights_wait_s=1", "--set", "launch.liveness_grace_s=180"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(l.rstrip() for l in launcher.stdout), daemon=True).start()
+    children = Descendants(launcher.pid)
+    done = threading.Event()
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{ports['dashboard']}", timeout=5) as http:
+
+            def status() -> dict:
+                try:
+                    snap = http.get("/api/status").json()
+                except (httpx.HTTPError, ValueError):
+                    return {}
+                children.scan()
+                return {"summary": snap["summary"], **{r["instance"]: r for r in snap["roles"]}}
+
+            def operator() -> None:
+                """The person: resets the scene, and judges every other episode a success."""
+                n = 0
+                with httpx.Client(base_url=http.base_url, timeout=5) as buttons:
+                    while not done.wait(1.0):
+                        n += 1
+                        for action in ("reset_done", "success" if n % 2 else "fail"):
+                            try:
+                                buttons.post(f"/api/operator/robot-0/{action}")
+                            except httpx.HTTPError:
+                                pass
+
+            threading.Thread(target=operator, daemon=True).start()
+            first = wait_for(
+                lambda: (s := status()) and s.get("robot-0", {}).get("counters", {}).get("acked", 0) >= 2 and s,
+                420, "two robot episodes stored by the replay",
+            )
+            robot = first["robot-0"]["counters"]
+            assert robot["episodes"] >= 2 and robot["operator_reset_done"] >= 2
+            wait_for(
+                lambda: (s := status()) and (s["summary"]["updates"] or 0) >= 2
+                and s["robot-0"]["counters"].get("weights_version", 0) >= 2 and s,
+                420, "learner updates and a newer weights version at the robot actor",
+            )
+        done.set()
+        stop_launcher(launcher, children)
+    finally:
+        done.set()
+        kill_launcher(launcher, children)
+        print("\n".join(lines[-60:]))

@@ -1,0 +1,98 @@
+"""The person in the loop: operator commands on the wire, from the dashboard and a terminal, to a robot actor."""
+
+from __future__ import annotations
+
+import io
+import threading
+import time
+
+import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+
+from actors.robot.operator import FabricOperator, OperatorChannel, TerminalOperator
+from dashboard.operator import OperatorPublisher
+from dashboard.operator import router as operator_routes
+from protocol.codec import ProtocolError
+from protocol.fabric import open_session
+from protocol.messages import OperatorAction, OperatorCommand, decode, encode, encode_unchecked
+
+
+def test_operator_command_round_trips():
+    command = OperatorCommand("robot-0", OperatorAction.RESET_DONE, seq=7, time=1.5, source="dashboard")
+    assert decode(encode(command), expect=OperatorCommand) == command
+
+
+@pytest.mark.parametrize("bad, field", [
+    (OperatorCommand("robot/0", OperatorAction.STOP), "actor"),  # would reshape the key
+    (OperatorCommand("robot-0", "dance"), "action"),
+    (OperatorCommand("robot-0", OperatorAction.STOP, seq=-1), "seq"),
+    (OperatorCommand("robot-0", OperatorAction.STOP, time=float("nan")), "time"),
+])
+def test_malformed_operator_commands_are_refused(bad, field):
+    with pytest.raises(ProtocolError) as err:
+        decode(encode_unchecked(bad), expect=OperatorCommand)
+    assert err.value.field == field
+
+
+def test_stop_acts_at_once_and_verdicts_wait_in_order():
+    calls = []
+    channel = OperatorChannel(on_stop=lambda: calls.append("stop"), on_resume=lambda: calls.append("resume"))
+    channel.put(OperatorAction.FAIL)
+    channel.put(OperatorAction.RESET_DONE)
+    channel.put(OperatorAction.STOP)
+    assert calls == ["stop"] and channel.paused
+    never = threading.Event()
+    assert channel.wait_for({OperatorAction.RESET_DONE}, never, timeout_s=0.3) is None  # paused: nothing is handed out
+    channel.put(OperatorAction.RESUME)
+    assert calls == ["stop", "resume"] and not channel.paused
+    assert channel.wait_for({OperatorAction.RESET_DONE}, never, timeout_s=1) is OperatorAction.RESET_DONE
+    assert channel.take({OperatorAction.SUCCESS, OperatorAction.FAIL}) is OperatorAction.FAIL
+    assert channel.take({OperatorAction.FAIL}) is None
+
+
+def test_terminal_words_reach_the_channel():
+    channel = OperatorChannel()
+    TerminalOperator(io.StringIO("r\nnonsense\nsuccess\nx\n"), channel)
+    deadline = time.monotonic() + 5
+    while not channel.paused and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert channel.paused
+    assert channel.take({OperatorAction.RESET_DONE}) is OperatorAction.RESET_DONE
+    assert channel.take({OperatorAction.SUCCESS}) is OperatorAction.SUCCESS
+
+
+def test_dashboard_buttons_reach_the_robot_actor_over_zenoh(router):
+    """HTTP POST -> dashboard's Zenoh session -> router -> the robot actor's subscriber -> its channel."""
+    dash, robot = open_session(router), open_session(router)
+    try:
+        channel = OperatorChannel()
+        listener = FabricOperator(robot, "run1", "robot-0", channel)
+        other = OperatorChannel()
+        FabricOperator(robot, "run1", "robot-1", other)
+        app = FastAPI()
+        app.include_router(operator_routes)
+        http = TestClient(app)
+        assert http.post("/api/operator/robot-0/success").status_code == 503  # no session installed yet
+        app.state.operator = OperatorPublisher(dash, "run1")
+        time.sleep(0.5)  # let the subscriptions reach the router
+        for action in ("reset_done", "success"):
+            answer = http.post(f"/api/operator/robot-0/{action}")
+            assert answer.status_code == 202 and answer.json()["action"] == action
+        assert http.post("/api/operator/robot-0/dance").status_code == 404
+        never = threading.Event()
+        assert channel.wait_for({OperatorAction.RESET_DONE}, never, timeout_s=10) is OperatorAction.RESET_DONE
+        assert channel.wait_for({OperatorAction.SUCCESS}, never, timeout_s=10) is OperatorAction.SUCCESS
+        assert other.take(set(OperatorAction)) is None  # only the addressed actor hears it
+        listener.close()
+    finally:
+        robot.close()
+        dash.close()
+
+
+def test_the_dashboard_app_serves_the_operator_buttons():
+    from dashboard.app import create_app
+    from dashboard.registry import RoleTable
+
+    app = create_app(RoleTable("run1"))
+    assert TestClient(app).post("/api/operator/robot-0/stop").status_code == 503  # until the role installs its session
