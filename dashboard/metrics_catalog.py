@@ -112,6 +112,8 @@ EXACT: dict[str, dict[str, Entry]] = {
         **_ACTING,
         "timeouts": _c("robot_timeout_episodes", "Episodes that ran out of decisions."),
         "operator_stops": _c("robot_operator_stopped_episodes", "Episodes cut short by an operator stop (dropped)."),
+        "operator_rejected": _c("robot_operator_messages_rejected",
+                                "Operator messages refused: undecodable, or addressed to another actor."),
         "moves": _c("robot_arm_moves", "Moves sent to the arm."),
         "reached": _c("robot_arm_moves_reached", "Moves that reached their pose."),
         "failed": _c("robot_arm_moves_failed", "Moves that failed on the arm."),

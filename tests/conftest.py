@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
+import httpx
 import numpy as np
 import psutil
 import pytest
@@ -223,3 +224,18 @@ def survivors(processes: list[psutil.Process]) -> list[psutil.Process]:
         except psutil.NoSuchProcess:
             pass
     return out
+
+
+def status_reader(http, children: "Descendants") -> Callable[[], dict]:
+    """``status()`` for launch tests: the dashboard's summary plus every role by instance ({} while it
+    does not answer); each call also records the launcher's descendants for cleanup."""
+
+    def status() -> dict:
+        try:
+            snap = http.get("/api/status").json()
+        except (httpx.HTTPError, ValueError):
+            return {}
+        children.scan()
+        return {"summary": snap["summary"], **{r["instance"]: r for r in snap["roles"]}}
+
+    return status

@@ -17,7 +17,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, stop_launcher, wait_for
+from conftest import (REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, status_reader, stop_launcher,
+                      wait_for)
 
 pytest.importorskip("franky")
 pytest.importorskip("franky_sim")
@@ -43,13 +44,7 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
     try:
         with httpx.Client(base_url=f"http://127.0.0.1:{ports['dashboard']}", timeout=5) as http:
 
-            def status() -> dict:
-                try:
-                    snap = http.get("/api/status").json()
-                except (httpx.HTTPError, ValueError):
-                    return {}
-                children.scan()
-                return {"summary": snap["summary"], **{r["instance"]: r for r in snap["roles"]}}
+            status = status_reader(http, children)
 
             def operator() -> None:
                 """The person: resets the scene, and judges every other episode a success."""

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import httpx
 
-from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, stop_launcher, wait_for
+from conftest import (REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, status_reader, stop_launcher,
+                      wait_for)
 from learner.checkpoint import complete_checkpoints
 
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
@@ -51,13 +52,7 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
     try:
         with httpx.Client(base_url=f"http://127.0.0.1:{ports['dashboard']}", timeout=5) as http:
 
-            def status() -> dict:
-                try:
-                    snap = http.get("/api/status").json()
-                except (httpx.HTTPError, ValueError):
-                    return {}
-                children.scan()
-                return {"summary": snap["summary"], **{r["instance"]: r for r in snap["roles"]}}
+            status = status_reader(http, children)
 
             # Demos and live episodes reach the replay, the learner updates, the actor swaps weights.
             first = wait_for(

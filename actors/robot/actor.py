@@ -87,7 +87,8 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
         session = open_session(ctx.fabric)
         stack.callback(session.close)
-        stack.callback(FabricOperator(session, ctx.run_id, ctx.instance, channel).close)
+        fabric_operator = FabricOperator(session, ctx.run_id, ctx.instance, channel)
+        stack.callback(fabric_operator.close)
         if terminal is not None:
             TerminalOperator(terminal, channel)
             print(TERMINAL_HELP, flush=True)
@@ -103,7 +104,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         def counters() -> dict[str, float]:
             return {**stats, **outbox.counters, **arm.counters, **arm.safety.counters(), **channel.counters,
                     "outbox_pending": outbox.pending, "weights_version": policy.version, **follower.counters(),
-                    "paused": float(channel.paused), "stop_to_still_s": arm.last_stop_s,
+                    "operator_rejected": fabric_operator.rejected, "paused": float(channel.paused), "stop_to_still_s": arm.last_stop_s,
                     "success_rate": stats["successes"] / max(1, stats["episodes"])}
 
         heartbeat = Heartbeat(session, ctx.run_id, "robot", ctx.instance, counters=counters,
