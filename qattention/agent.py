@@ -132,7 +132,7 @@ class C2FARM:
             grid = voxelise(*gather_points(batch.obs, cams, centre, crop), bounds[:, d], v)
             with self._autocast():
                 q, rg = self.nets[d](grid, prop)
-            out = depth_loss(q, rg, idx[:, d], rot_grip, y, batch.weights, cfg)
+            out = depth_loss(q, rg, idx[:, d], rot_grip, y, batch.weights, cfg, batch.is_demo)
             self.optimisers[d].zero_grad(set_to_none=True)
             out.loss.backward()
             outs.append(out)
@@ -159,6 +159,8 @@ class C2FARM:
                 metrics[f"td_rotation/depth{d}"] = out.td_heads[:, 1:4].mean().item()
                 metrics[f"td_gripper/depth{d}"] = out.td_heads[:, 4].mean().item()
             metrics[f"qreg/depth{d}"] = out.qreg.mean().item()
+            if cfg.demo_margin > 0:
+                metrics[f"demo_margin/depth{d}"] = out.margin.mean().item()
             metrics[f"q_chosen/depth{d}"] = out.q_chosen.mean().item()
             metrics[f"target/depth{d}"] = y.mean().item()
         self.update_step += 1

@@ -35,6 +35,8 @@ class QAttentionConfig:
     lambda_trans_qreg: float = 1.0  #: L1 regulariser weight on all translation Q-values
     lambda_rot_qreg: float = 1.0  #: L1 regulariser weight on all rotation/gripper Q-values
     per_alpha: float = 0.7  #: PER exponent applied to the returned priorities
+    demo_margin: float = 0.0  #: large-margin loss on demo rows (DQfD): every other choice's Q must sit this far below the demo's, per head; 0 = off, as the reference
+    lambda_demo_margin: float = 1.0  #: weight of the demo margin loss beside the TD loss
     crop_augmentation: bool = True  #: shift the depth>=1 cube centre of demo transitions at label time
     crop_shift: float = 0.75  #: max shift per axis as a fraction of bounds_offset
     reward_scale: float = 0.01  #: reward multiplier before the TD target (100 -> 1)
@@ -54,6 +56,8 @@ class QAttentionConfig:
             raise ValueError(f"bf16 must be true, false or 'auto', not {self.bf16!r}")
         if self.padding not in ("zeros", "replicate"):
             raise ValueError(f"padding must be 'zeros' or 'replicate', not {self.padding!r}")
+        if self.demo_margin < 0 or self.lambda_demo_margin < 0:
+            raise ValueError("demo_margin and lambda_demo_margin must be >= 0")
         if isinstance(self.bounds_offset, (list, tuple)) and len(self.bounds_offset) < self.depths - 1:
             raise ValueError("bounds_offset needs one value per depth >= 1")
 

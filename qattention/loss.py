@@ -3,6 +3,7 @@
 Per depth: double-DQN target (online argmax on s_t+1, target-net value), at the last depth the
 mean over translation, 3 rotation axes and gripper; y = max(r*scale + gamma*(1-terminal)*q', 0);
 Huber TD per head, averaged; L1 Q-regulariser over all outputs; importance-weighted mean.
+Optional (not in the reference): DQfD's large-margin loss on demo rows (``demo_margin`` > 0).
 Deviation: the s_t+1 cube of depth d>=1 is centred on the online net's greedy depth d-1 choice
 at s_t+1 (the cascade's own max), not on a coordinate stored with the next observation.
 """
@@ -56,15 +57,34 @@ class DepthLoss:
     qreg: torch.Tensor  #: [B] Q regulariser (detached)
     q_chosen: torch.Tensor  #: [B] online translation Q at the label (detached)
     td_heads: torch.Tensor  #: [B, heads] Huber TD per head (detached)
+    margin: torch.Tensor  #: [B] demo margin loss, 0 on agent rows or when off (detached)
 
 
-def depth_loss(q_trans, q_rg, voxel_index, rot_grip, y, weights, config) -> DepthLoss:
-    """Loss of one depth given its online outputs and labels (voxel [B, 3], rot_grip [B, 4])."""
+def margin_loss(q: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
+    """DQfD's supervised loss [B] for one head: ``max_a (Q(a) + margin * [a != label]) - Q(label)``.
+
+    Zero once the labelled choice beats every other by ``margin``; unlike cross-entropy it
+    leaves the Q-values' scale to the TD loss, so demos teach the ranking, not the values.
+    """
+    chosen = q.gather(1, label[:, None])[:, 0]
+    lifted = q + margin
+    lifted = lifted.scatter(1, label[:, None], chosen[:, None])
+    return lifted.max(1).values - chosen
+
+
+def depth_loss(q_trans, q_rg, voxel_index, rot_grip, y, weights, config, is_demo=None) -> DepthLoss:
+    """Loss of one depth given its online outputs and labels (voxel [B, 3], rot_grip [B, 4]).
+
+    With ``config.demo_margin`` > 0, rows flagged in ``is_demo`` [B] also pay the margin loss of
+    every head (mean over heads, times ``lambda_demo_margin``); priorities stay TD-only.
+    """
     b, v = q_trans.shape[0], config.voxel_size
     q_flat = q_trans.reshape(b, -1).float()
-    chosen = q_flat.gather(1, flat_index(voxel_index, v)[:, None])[:, 0]
+    label = flat_index(voxel_index, v)
+    chosen = q_flat.gather(1, label[:, None])[:, 0]
     td = [F.smooth_l1_loss(chosen, y, reduction="none")]
     qreg = config.lambda_trans_qreg * q_flat.abs().mean(1)
+    heads = [(q_flat, label)]
     if q_rg is not None:
         q_rg = q_rg.float()
         rot, grip = split_rot_grip(q_rg, config.rotation_bins)
@@ -72,10 +92,15 @@ def depth_loss(q_trans, q_rg, voxel_index, rot_grip, y, weights, config) -> Dept
         td += [F.smooth_l1_loss(rot_chosen[:, i], y, reduction="none") for i in range(3)]
         td.append(F.smooth_l1_loss(grip.gather(1, rot_grip[:, 3:4])[:, 0], y, reduction="none"))
         qreg = qreg + config.lambda_rot_qreg * q_rg.abs().mean(1)
+        heads += [(rot[:, i], rot_grip[:, i]) for i in range(3)] + [(grip, rot_grip[:, 3])]
     td = torch.stack(td, 1)
     delta = td.mean(1)
-    loss = ((delta + qreg) * weights).mean()
-    return DepthLoss(loss, delta.detach(), qreg.detach(), chosen.detach(), td.detach())
+    margin = torch.zeros_like(delta)
+    if config.demo_margin > 0 and is_demo is not None and bool(is_demo.any()):
+        per_head = torch.stack([margin_loss(q, a, config.demo_margin) for q, a in heads], 1).mean(1)
+        margin = per_head * is_demo.float()
+    loss = ((delta + qreg + config.lambda_demo_margin * margin) * weights).mean()
+    return DepthLoss(loss, delta.detach(), qreg.detach(), chosen.detach(), td.detach(), margin.detach())
 
 
 def priorities(deltas: list[torch.Tensor], alpha: float) -> torch.Tensor:

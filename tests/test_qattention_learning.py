@@ -108,3 +108,34 @@ def test_n_step_targets_see_the_reward_n_decisions_ahead_at_once():
     assert torch.allclose(y, torch.tensor([0.9**2, 0.9**3 * 0.5, 0.9**2 * 0.5]))
     one_step = td_target(rewards[:, 0], terminal, q_next, cfg)
     assert torch.allclose(one_step, torch.tensor([0.0, 0.45, 0.45]))
+
+
+def test_margin_loss_is_zero_once_the_label_leads_by_the_margin():
+    from qattention.loss import margin_loss
+
+    q = torch.tensor([[0.5, 0.3, 0.1], [0.2, 0.25, 0.0]])
+    label = torch.tensor([0, 0])
+    loss = margin_loss(q, label, 0.1)
+    # row 0: the label leads by 0.2 >= 0.1; row 1: another choice leads by 0.05, plus the margin
+    torch.testing.assert_close(loss, torch.tensor([0.0, 0.15]))
+
+
+def test_demo_margin_teaches_the_demos_choices_without_any_reward():
+    """Zero reward everywhere: the TD loss alone has nothing to rank the choices by, the margin does."""
+    b = batch(4, seed=1, demos=True)
+    b.reward[:] = 0.0
+
+    def trained(margin):
+        torch.manual_seed(0)
+        agent = C2FARM(SMALL.replace(crop_augmentation=False, demo_margin=margin), seed=0)
+        for _ in range(100):
+            agent.update(b)
+        voxels, _, _, rot_grip = agent.labels(b)
+        result = agent.act(b.obs)
+        return (result.voxel_indices == voxels.numpy()).all(-1), (result.rot_grip_indices == rot_grip.numpy())
+
+    voxels_hit, rot_grip_hit = trained(margin=0.1)
+    assert voxels_hit[:, 0].all() and voxels_hit[:, 1].sum() >= 3  # depth 0 everywhere, depth 1 nearly
+    assert rot_grip_hit.all()
+    voxels_hit, rot_grip_hit = trained(margin=0.0)
+    assert voxels_hit[:, 0].sum() <= 1 and rot_grip_hit.sum() <= 8  # TD alone: chance
