@@ -91,6 +91,14 @@ def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, to
     return result
 
 
+def stamp_scene_bounds(observations: list[Observation], bounds) -> None:
+    """Let every observation carry the depth-0 box it was taken for (``extra_scene_bounds`` on the
+    wire), unless it already does: the learner then voxelises each sample in its own box."""
+    box = np.asarray(bounds, dtype=np.float32).reshape(6)
+    for obs in observations:
+        obs.extras.setdefault("scene_bounds", box)
+
+
 def pad_act_labels(observations: list[Observation], depths: int) -> None:
     """Give observations without act-time labels (the final one, demo frames) zero labels,
     so every episode in a replay carries the same arrays; the learner ignores them there."""
@@ -200,6 +208,8 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
                         top_k=config.reachable_top_k)
             if r is None:
                 break
+            if config.scene_bounds_on_wire:
+                stamp_scene_bounds(r.observations, env.scene_bounds)
             outbox.send(to_episode(r, ctx.instance, episode_id, sim_config.task, seed, policy.version))
             outbox.resend_due()
             n += 1

@@ -22,6 +22,7 @@ class ActorConfig:
     eval_seed: int = 1_000_000  #: evaluator: first seed of the fixed evaluation set (disjoint from training seeds)
     eval_every_versions: int = 5  #: evaluator: evaluate a version only if this many versions passed since the last
     record_eval: bool = True  #: evaluator: write each evaluation episode as MCAP under runs/<id>/eval/
+    scene_bounds_on_wire: bool = False  #: every episode carries its depth-0 box (extra_scene_bounds); needed in a run with a robot actor, whose box is not the task's (the replay wants one set of arrays)
     eval_tensorboard: bool = True  #: evaluator: also write eval success, return and unreachable rate to TensorBoard (runs/<id>/tensorboard, beside the learner's scalars)
 
     def __post_init__(self) -> None:

@@ -1,7 +1,7 @@
 """Demonstrations into the replay: a demo source is just another actor.
 
-Each demo file becomes keyframe-to-keyframe episodes (keyframe discovery + demo
-augmentation, c2farm_spec §6.1-6.2), published through the same outbox and protocol as
+Each demo file becomes keyframe-to-keyframe episodes (the operator's keyframes, or keyframe
+discovery, + demo augmentation, c2farm_spec §6.1-6.2), published through the same outbox and protocol as
 live episodes, flagged ``is_demo``. Episode ids are derived from the file order, so running
 the source again (after a crash or a replay restart) stores nothing twice.
 """
@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from actors.actor_loop import pad_act_labels
+from actors.actor_loop import pad_act_labels, stamp_scene_bounds
 from actors.config import ActorConfig
 from actors.demos.augmentation import demo_to_transitions
-from actors.demos.keyframes import discover_keyframes
+from actors.demos.keyframes import demo_keyframes
 from actors.demos.mcap_io import load_demo
 from actors.outbox import Outbox
 from protocol.episode import Episode, stack_observations
@@ -30,13 +30,18 @@ log = logging.getLogger("demos")
 IDS_PER_DEMO = 10_000
 
 
-def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10, depths: int = 2) -> list[Episode]:
+def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10, depths: int = 2,
+                  scene_bounds_on_wire: bool = False) -> list[Episode]:
     """The demo-augmented episodes of one demo file, ready to publish.
 
-    ``depths`` sizes the (unused, zero) act-time label arrays that live episodes carry.
+    ``depths`` sizes the (unused, zero) act-time label arrays that live episodes carry. With
+    ``scene_bounds_on_wire`` every observation carries the demo's depth-0 box: the one a robot
+    demo was recorded for, else its simulated task's.
     """
     demo = load_demo(path)
-    keyframes = discover_keyframes(demo.observations)
+    if scene_bounds_on_wire:
+        stamp_scene_bounds(demo.observations, demo.scene_bounds or task_bounds(demo.task))
+    keyframes = demo_keyframes(demo)  # the operator's (robot demos) or discovered
     episodes = []
     for i, part in enumerate(demo_to_transitions(demo.observations, keyframes, every_n=every_n)):
         steps = len(part.actions)
@@ -59,6 +64,13 @@ def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10,
     return episodes
 
 
+def task_bounds(task: str) -> tuple[float, ...]:
+    """The depth-0 box of a simulated task."""
+    from actors.sim.tasks import make_task
+
+    return tuple(make_task(task).scene_bounds)
+
+
 def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10, limit: int = 0,
         depths: int = 2) -> int:
     """Publish every demo in ``demo_dir`` (the first ``limit`` if set) and wait for the acks."""
@@ -76,7 +88,7 @@ def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10
         for index, path in enumerate(files):
             if ctx.stop.is_set():
                 break
-            for episode in demo_episodes(path, index, ctx.instance, every_n, depths):
+            for episode in demo_episodes(path, index, ctx.instance, every_n, depths, config.scene_bounds_on_wire):
                 outbox.send(episode)
                 published["demo_episodes"] += 1
             published["demos"] += 1

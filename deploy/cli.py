@@ -184,8 +184,10 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "robot-demos",
         help="record demonstrations on the robot from the operator's waypoints (MCAP, as simulated demos)",
-        description="Drive the configured arm (robot.arm) through waypoints 'x y z [qx qy qz qw] open|close', "
-        "one per line, recording every demo into the run's demo folder, where the demo source sends it from.",
+        description="Drive the configured arm (robot.arm) through waypoints 'x y z [qx qy qz qw] open|close [via]', "
+        "one per line, recording every demo into the run's demo folder, where the demo source sends it from. "
+        "Each waypoint's end is a keyframe the agent learns from, except a via-point's (a trailing 'via': "
+        "only there to steer the path); the last waypoint cannot be one.",
     )
     _common(p)
     _robot_flags(p)
@@ -205,6 +207,8 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
 
     put("sim", "task", args.task)
     put("robot", "arm", getattr(args, "robot", None))
+    if getattr(args, "robot", None):  # the robot's depth-0 box is not the task's: every episode says its own
+        put("actor", "scene_bounds_on_wire", True)
     if getattr(args, "robot_host", None):
         out.setdefault("robot", {}).setdefault("franka", {})["host"] = args.robot_host
     if getattr(args, "camera", None):
@@ -347,7 +351,7 @@ def _robot_demos(args, config) -> int:
     if args.waypoints:
         waypoints = read_waypoints(Path(args.waypoints).read_text().splitlines())
     else:
-        print("waypoints, one per line: x y z [qx qy qz qw] open|close; an empty line ends", flush=True)
+        print("waypoints, one per line: x y z [qx qy qz qw] open|close [via]; an empty line ends", flush=True)
         waypoints = read_waypoints(iter(lambda: sys.stdin.readline().rstrip("\n"), ""))
     if not waypoints:
         print("c2farm: no waypoints", file=sys.stderr)

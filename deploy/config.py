@@ -131,6 +131,11 @@ class RunConfig:
     demos: DemoConfig = field(default_factory=DemoConfig)  #: scripted demonstrations
     qattention: QAttentionConfig = field(default_factory=QAttentionConfig)  #: the C2F-ARM networks and loss (cameras, episode length and scene bounds come from sim)
 
+    def __post_init__(self) -> None:
+        if "robot" in self.launch.roles and not self.actor.scene_bounds_on_wire:
+            raise ConfigError("actor.scene_bounds_on_wire: must be true in a run with a robot actor "
+                              "(its episodes carry the robot's box; the replay wants every episode alike)")
+
     @property
     def run_dir(self) -> Path:
         if self.run.run_id is None:

@@ -111,6 +111,7 @@ def test_bad_values_are_rejected_with_their_path():
         ({"dashboard": {"port": 70000}}, "dashboard: port 70000 is outside"),
         ({"run": {"run_id": "a/b"}}, "run: invalid run id 'a/b'"),
         ({"replay": {"compression": "gzip"}}, "replay.compression: expected one of"),
+        ({"launch": {"roles": ["replay", "robot"]}}, "actor.scene_bounds_on_wire: must be true in a run with a robot"),
     ]:
         with pytest.raises(ConfigError, match=message):
             load_config(None, overrides=(override,))

@@ -3,8 +3,10 @@
 Every role is a real process started by ``c2farm launch --robot franky-sim --camera mujoco``: the
 robot actor drives franky-sim through franky over libfranka's protocol and sees the scene through
 the MuJoCo RGB-D stand-in. The test is the person: it says "reset done", "success" and "fail"
-through the dashboard's HTTP API. Episodes reach the replay, the learner trains on them, and the
-robot actor follows newer weights. The learner and the replay are the unchanged roles.
+through the dashboard's HTTP API. Episodes reach the replay, the learner trains on them (each
+sample voxelised in the robot's own box, which its observations carry), the robot actor follows
+newer weights and, with ``robot.evaluate``, scores them greedily into metrics/eval.csv. The
+learner and the replay are the unchanged roles.
 """
 
 from __future__ import annotations
@@ -34,7 +36,9 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
          "--robot", "franky-sim", "--camera", "mujoco", "--roles", "router,replay,dashboard,learner,robot",
          "--task", "reach_target", *TINY_TRAINING,
          "--set", "robot.franka.dynamics_factor=0.5", "--set", "robot.verdict_wait_s=1",
-         "--set", "actor.weights_wait_s=1", "--set", "launch.liveness_grace_s=180"],
+         "--set", "actor.weights_wait_s=1", "--set", "launch.liveness_grace_s=180",
+         "--set", "robot.evaluate=true", "--set", "actor.eval_episodes=1", "--set", "actor.eval_min_episodes=1",
+         "--set", "actor.eval_every_versions=1"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )
     lines: list[str] = []
@@ -70,6 +74,11 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
                 and s["robot-0"]["counters"].get("weights_version", 0) >= 2 and s,
                 420, "learner updates and a newer weights version at the robot actor",
             )
+            evaluations = tmp_path / "runs" / "robot-e2e" / "metrics" / "eval.csv"
+            wait_for(lambda: evaluations.exists() and len(evaluations.read_text().splitlines()) >= 2, 420,
+                     "a greedy evaluation on the robot")
+            row = dict(zip(*[line.split(",") for line in evaluations.read_text().splitlines()[:2]]))
+            assert int(row["weights_version"]) >= 1 and int(row["episodes"]) == 1
         done.set()
         stop_launcher(launcher, children)
     finally:

@@ -2,7 +2,7 @@
 
 The scripted reach operator stands in for the person here (it says "reset done" after moving
 the target, "success" when the grasp frame is within 2 cm of it); a person's words take the
-same channel.
+same channel. Every observation carries the robot's depth-0 box, the safety workspace by default.
 """
 
 from __future__ import annotations
@@ -20,11 +20,13 @@ from actors.robot.env import OperatorStopped, ReachOperator, RobotEnv  # noqa: E
 from actors.robot.franka import FrankaArm  # noqa: E402
 from actors.robot.franky_sim import FrankySim  # noqa: E402
 from actors.robot.operator import OperatorChannel  # noqa: E402
+from actors.robot.safety import Safety  # noqa: E402
 from actors.sim.env import SUCCESS_REWARD  # noqa: E402
+from protocol.episode import EXTRA_PREFIX, stack_observations  # noqa: E402
 from protocol.messages import OperatorAction  # noqa: E402
+from qattention.batch import ObservationBatch  # noqa: E402
 
 DOWN = [1.0, 0.0, 0.0, 0.0]
-BOUNDS = (0.0, -0.5, 0.0, 1.0, 0.5, 1.0)
 
 
 @pytest.fixture
@@ -34,8 +36,8 @@ def rig():
         arm = FrankaArm(FrankaConfig(host=sim.hostname, dynamics_factor=0.3), SafetyConfig(), [sim.camera("front")])
         arm.connect()
         channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
-        env = RobotEnv(arm, channel, RobotConfig(arm="franky-sim", verdict_wait_s=0.5), "reach_target", 2, BOUNDS,
-                       stop, scripted=ReachOperator(sim, channel))
+        env = RobotEnv(arm, channel, RobotConfig(arm="franky-sim", verdict_wait_s=0.5), "reach_target", 2, stop,
+                       scripted=ReachOperator(sim, channel))
         yield env, sim, channel
         stop.set()
         env.close()
@@ -89,3 +91,34 @@ def test_an_operator_stop_drops_the_episode_and_pauses_until_resume(rig):
     channel.put(OperatorAction.RESUME, "test")
     env.reset(seed=7)
     assert env.step(np.array([0.45, 0.0, 0.3, *DOWN, 1.0])).unreachable is False
+
+
+def test_every_observation_carries_the_robot_box_to_the_learner(rig):
+    env, sim, _ = rig
+    box = (0.2, -0.4, 0.0, 0.75, 0.4, 0.6)  # the default safety workspace, from the table top (z = 0) up
+    first = env.reset(seed=8)
+    last = env.step(np.array([*sim.target, *DOWN, 1.0])).observation
+    # On the wire: ``extra_scene_bounds`` per observation; the learner strips the prefix and
+    # voxelises each sample in the box it carries, whatever its own config says.
+    arrays = {k.removeprefix(EXTRA_PREFIX): v for k, v in stack_observations([first, last]).items()}
+    batch = ObservationBatch.from_arrays(arrays, ["front"])
+    assert batch.bounds((-0.1, -0.5, -0.05, 0.9, 0.5, 0.95)).numpy() == pytest.approx(np.array([box, box]))
+
+
+def test_the_default_box_holds_only_poses_the_safety_limits_let_through():
+    robot = RobotConfig(arm="franky-sim")
+    lo, hi = np.array(robot.depth0_bounds[:3]), np.array(robot.depth0_bounds[3:])
+    voxels = 16
+    centres = lo + (np.stack(np.meshgrid(*[np.arange(voxels)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) \
+        * (hi - lo) / voxels
+    safety = Safety(robot.safety)
+    assert all(safety.allows(np.array([*c, *DOWN]), c) for c in centres)  # from where it stands: no step limit
+
+
+def test_scene_bounds_are_six_numbers_with_min_below_max():
+    assert RobotConfig(scene_bounds=[0.3, -0.2, 0.0, 0.6, 0.2, 0.4]).depth0_bounds == (0.3, -0.2, 0.0, 0.6, 0.2, 0.4)
+    for bad in ([0.3, -0.2, 0.0], [0.6, -0.2, 0.0, 0.3, 0.2, 0.4], [0, 0, 0, float("nan"), 1, 1]):
+        with pytest.raises(ValueError, match="scene"):
+            RobotConfig(scene_bounds=bad)
+    with pytest.raises(ValueError, match="table top"):
+        RobotConfig(safety=SafetyConfig(table_height=0.7))  # above the workspace: an empty box

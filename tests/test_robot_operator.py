@@ -3,8 +3,15 @@
 from __future__ import annotations
 
 import io
+import os
+import pty
+import subprocess
+import sys
+import termios
+import textwrap
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from fastapi import FastAPI
@@ -60,6 +67,78 @@ def test_terminal_words_reach_the_channel():
     assert channel.paused
     assert channel.take({OperatorAction.RESET_DONE}) is OperatorAction.RESET_DONE
     assert channel.take({OperatorAction.SUCCESS}) is OperatorAction.SUCCESS
+
+
+def _until(condition, timeout_s: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return condition()
+
+
+@pytest.fixture
+def terminal():
+    """A pseudo-terminal: (the operator's keyboard side, the actor's side as a text stream)."""
+    keyboard, actor_side = pty.openpty()
+    with open(actor_side, "r", closefd=False) as stream:
+        yield keyboard, stream
+    os.close(keyboard)
+    os.close(actor_side)
+
+
+def test_a_single_key_acts_on_a_terminal_without_enter(terminal):
+    keyboard, stream = terminal
+    settings = termios.tcgetattr(stream)
+    calls = []
+    channel = OperatorChannel(on_stop=lambda: calls.append("stop"), on_resume=lambda: calls.append("resume"))
+    with TerminalOperator(stream, channel) as operator:
+        assert not termios.tcgetattr(stream)[3] & termios.ICANON  # cbreak: keys arrive one by one
+        assert "Enter" not in operator.help
+        os.write(keyboard, b"x")  # no newline: the stop is the key itself
+        assert _until(lambda: channel.paused) and calls == ["stop"]
+        os.write(keyboard, b"c")
+        assert _until(lambda: not channel.paused) and calls == ["stop", "resume"]
+        os.write(keyboard, b"r ")  # space stops too
+        assert _until(lambda: channel.paused) and calls == ["stop", "resume", "stop"]
+        assert channel.take({OperatorAction.RESET_DONE}) is OperatorAction.RESET_DONE
+    assert termios.tcgetattr(stream) == settings
+
+
+def test_the_terminal_is_restored_when_the_actor_fails(terminal):
+    _, stream = terminal
+    settings = termios.tcgetattr(stream)
+    with pytest.raises(RuntimeError), TerminalOperator(stream, OperatorChannel()):
+        assert termios.tcgetattr(stream) != settings
+        raise RuntimeError("the arm went away")
+    assert termios.tcgetattr(stream) == settings
+
+
+def test_the_terminal_is_restored_when_the_actor_is_signalled(terminal):
+    """As ``c2farm robot`` ends: SIGTERM sets the role's stop, the role unwinds, then ``os._exit``."""
+    _, stream = terminal
+    settings = termios.tcgetattr(stream)
+    child = textwrap.dedent("""
+        import os, sys, threading
+        from actors.robot.operator import OperatorChannel, TerminalOperator
+        from protocol.role import stop_on_signals
+        stop = threading.Event()
+        stop_on_signals(stop)
+        with open(sys.argv[1]) as terminal, TerminalOperator(terminal, OperatorChannel()):
+            print("keys", flush=True)
+            stop.wait()
+        os._exit(0)
+    """)
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-c", child, os.ttyname(stream.fileno())], cwd=root,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "keys"
+        assert not termios.tcgetattr(stream)[3] & termios.ICANON
+        proc.terminate()
+        assert proc.wait(timeout=10) == 0
+    finally:
+        proc.kill()
+    assert termios.tcgetattr(stream) == settings
 
 
 def test_dashboard_buttons_reach_the_robot_actor_over_zenoh(router):

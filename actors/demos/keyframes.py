@@ -4,15 +4,22 @@ A frame is a keyframe when the gripper opens or closes there, when it is the las
 the arm has "stopped" (all joint velocities within ``stopping_delta``, the gripper state steady
 around it, at least 5 frames after the previous stop). The reference's quirks are kept on purpose,
 including Python's negative indexing at frame 0, so our demos yield the reference's keyframes.
+
+A demo that carries its operator's keyframes (robot demos) uses those instead: on a real arm
+the rule also fires where the arm jitters or the operator pauses.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from protocol.observation import Observation
+
+if TYPE_CHECKING:
+    from actors.demos.mcap_io import Demo
 
 
 def _is_stopped(demo: Sequence[Observation], i: int, obs: Observation, stopped_buffer: int, delta: float) -> bool:
@@ -40,3 +47,8 @@ def discover_keyframes(observations: Sequence[Observation], stopping_delta: floa
     if len(keyframes) > 1 and (keyframes[-1] - 1) == keyframes[-2]:
         keyframes.pop(-2)
     return keyframes
+
+
+def demo_keyframes(demo: Demo) -> list[int]:
+    """The keyframes a demo is learnt from: the operator's when it has them, else the reference rule's."""
+    return list(demo.keyframes) if demo.keyframes is not None else discover_keyframes(demo.observations)

@@ -13,6 +13,9 @@ say why they ended in the metadata (``end``: success / timeout / unreachable / f
 ``unreachable_reason``). Both are additions: files without them still load, and readers that
 predate them skip the channel (it is outside ``/raw/``).
 
+Robot demos also carry the operator's ``keyframes`` (JSON frame indices) in the metadata; files
+without them (every simulated demo, robot demos recorded before) have their keyframes discovered.
+
 :func:`read_episode_view` reads only what a viewer needs (images, calibration, poses, actions),
 without the points and without the simulator, so the dashboard can use it.
 """
@@ -53,6 +56,8 @@ class Demo:
     success: bool
     observations: list[Observation]
     waypoint_frames: list[int] = field(default_factory=list)  #: frame index at which each scripted waypoint ended
+    keyframes: list[int] | None = None  #: the operator's keyframes (robot demos); None: discover them
+    scene_bounds: tuple[float, ...] | None = None  #: the depth-0 box it was recorded for (robot demos); None: the task's
     control_hz: int = 20  #: recording rate (frames per simulated second)
     attempts: int = 1  #: seeds tried for this demo (failed demos are retried with the next seed)
     actions: list[np.ndarray] = field(default_factory=list)  #: policy episodes: the pose chosen at each frame but the last
@@ -71,9 +76,20 @@ def _depth(points: np.ndarray, extrinsics: np.ndarray) -> np.ndarray:
     return ((points.astype(np.float64) - e[:3, 3]) @ e[:3, 2]).astype(np.float32)
 
 
+def keyframes_problem(keyframes: object, frames: int) -> str:
+    """Why ``keyframes`` are no demo's keyframes (increasing frame indices after frame 0), or ""."""
+    if not isinstance(keyframes, list) or not all(type(k) is int for k in keyframes):
+        return f"keyframes {keyframes!r} are not a list of frame indices"
+    if any(not 0 < k < frames for k in keyframes) or keyframes != sorted(set(keyframes)):
+        return f"keyframes {keyframes} are not increasing frames in 1..{frames - 1}"
+    return ""
+
+
 def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
     """Write ``demo``; returns the file size in bytes. Point-cloud previews every ``points_every`` frames."""
     path = Path(path)
+    if demo.keyframes is not None and (problem := keyframes_problem(demo.keyframes, len(demo.observations))):
+        raise ValueError(problem)
     cams = list(demo.observations[0].cameras) if demo.observations else []
     dt_ns = int(1e9 / demo.control_hz)
     with path.open("wb") as f:
@@ -128,6 +144,8 @@ def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
             "frames": str(len(demo.observations)), "cameras": json.dumps(cams),
             "waypoint_frames": json.dumps(demo.waypoint_frames), "control_hz": str(demo.control_hz),
             "attempts": str(demo.attempts), "format": "c2farm-demo/1",
+            **({"keyframes": json.dumps(demo.keyframes)} if demo.keyframes is not None else {}),
+            **({"scene_bounds": json.dumps([float(b) for b in demo.scene_bounds])} if demo.scene_bounds else {}),
             **({"end": demo.end_reason, "unreachable_reason": demo.unreachable_reason} if demo.end_reason else {})})
         w.finish()
     return path.stat().st_size
@@ -208,9 +226,37 @@ def load_demo(path: str | Path) -> Demo:
             cameras=frames, gripper_pose=v[0:7].copy(), gripper_open=float(v[7]), finger_positions=v[8:10].copy(),
             joint_positions=v[10:17].copy(), joint_velocities=v[17:24].copy(), step=int(v[24])))
     return Demo(task=ep["task"], seed=int(ep["seed"]), success=json.loads(ep["success"]), observations=observations,
-                waypoint_frames=json.loads(ep["waypoint_frames"]), control_hz=int(ep["control_hz"]),
+                waypoint_frames=json.loads(ep["waypoint_frames"]), keyframes=_read_keyframes(path, raw),
+                scene_bounds=_read_scene_bounds(path, ep),
+                control_hz=int(ep["control_hz"]),
                 attempts=int(ep["attempts"]), actions=[raw.actions[i].copy() for i in sorted(raw.actions)],
                 end_reason=ep.get("end", ""), unreachable_reason=ep.get("unreachable_reason", ""))
+
+
+def _read_scene_bounds(path: Path, meta: dict) -> tuple[float, ...] | None:
+    """The depth-0 box a robot demo was recorded for; None for a file without one."""
+    if "scene_bounds" not in meta:
+        return None
+    try:
+        bounds = tuple(float(b) for b in json.loads(meta["scene_bounds"]))
+    except (ValueError, TypeError):
+        raise DemoFileError(path, f"scene_bounds {meta['scene_bounds']!r} are not 6 numbers") from None
+    if len(bounds) != 6 or not all(np.isfinite(bounds)) or any(lo >= hi for lo, hi in zip(bounds[:3], bounds[3:])):
+        raise DemoFileError(path, f"scene_bounds {list(bounds)} are no box (min xyz, max xyz)")
+    return bounds
+
+
+def _read_keyframes(path: Path, raw: _RawEpisode) -> list[int] | None:
+    """The operator's keyframes from the metadata; None for a file without them."""
+    if "keyframes" not in raw.meta:
+        return None
+    try:
+        keyframes = json.loads(raw.meta["keyframes"])
+    except ValueError:
+        raise DemoFileError(path, f"keyframes {raw.meta['keyframes']!r} are not JSON") from None
+    if problem := keyframes_problem(keyframes, raw.frames):
+        raise DemoFileError(path, problem)
+    return keyframes
 
 
 @dataclass

@@ -4,8 +4,11 @@ It is the simulated actor with another environment: the same weights following, 
 cascade and exploration, the same outbox and episode protocol, so the learner and the replay
 need no change. Differences: a ``RobotEnv`` (arm, cameras, operator) instead of ``PandaEnv``;
 episodes carry ``info["source"] = "robot"``; an operator stop pauses the loop until "resume"
-and drops the cut-short episode. ``robot.arm: franky-sim`` starts franky-sim inside this
-process (loopback, MuJoCo cameras), so CI drives the very code that drives a real arm.
+and drops the cut-short episode; the policy picks poses in the robot's own depth-0 box
+(``robot.scene_bounds``), which every observation carries to the learner. With
+``robot.evaluate`` it also plays the evaluator's greedy episodes, into ``metrics/eval.csv``.
+``robot.arm: franky-sim`` starts franky-sim inside this process (loopback, MuJoCo cameras),
+so CI drives the very code that drives a real arm.
 """
 
 from __future__ import annotations
@@ -19,16 +22,19 @@ import zlib
 
 import torch
 
-from actors.actor_loop import ActingPolicy, episode_seed, rollout, to_episode
+from actors.actor_loop import ActingPolicy, Rollout, episode_seed, rollout, to_episode
 from actors.config import ActorConfig
+from actors.evaluation import EvalResult, evaluate, write_snapshot
+from actors.evaluation import _append_csv as append_eval_row
 from actors.outbox import Outbox
 from actors.robot.config import RobotConfig
 from actors.robot.env import OperatorStopped, ReachOperator, RobotEnv
 from actors.robot.franka import FrankaArm
-from actors.robot.operator import TERMINAL_HELP, FabricOperator, OperatorChannel, TerminalOperator
+from actors.robot.operator import FabricOperator, OperatorChannel, TerminalOperator
 from actors.weights import WeightsFollower
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
+from protocol.messages import WeightsUpdate
 from protocol.role import RoleContext
 from qattention.config import QAttentionConfig
 from qattention.digest import network_digest
@@ -78,7 +84,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
     """Collect real episodes until stopped (or ``max_episodes``); ``terminal`` is the operator's text stream."""
     torch.set_num_threads(max(1, config.torch_threads))
     torch.manual_seed(ctx.seed + zlib.crc32(ctx.instance.encode()))
-    qconfig = qconfig.replace(epsilon=config.epsilon)
+    qconfig = qconfig.replace(epsilon=config.epsilon, scene_bounds=robot.depth0_bounds)
     stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0, "timeouts": 0, "operator_stops": 0,
              "reach_checks": 0, "reach_replaced": 0}
     with contextlib.ExitStack() as stack:
@@ -90,10 +96,10 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         fabric_operator = FabricOperator(session, ctx.run_id, ctx.instance, channel)
         stack.callback(fabric_operator.close)
         if terminal is not None:
-            TerminalOperator(terminal, channel)
-            print(TERMINAL_HELP, flush=True)
+            operator = stack.enter_context(TerminalOperator(terminal, channel))  # restores the terminal on the way out
+            print(operator.help, flush=True)
         scripted = ReachOperator(sim, channel) if robot.scripted_operator else None
-        env = RobotEnv(arm, channel, robot, task, qconfig.episode_length, qconfig.scene_bounds, ctx.stop, scripted)
+        env = RobotEnv(arm, channel, robot, task, qconfig.episode_length, ctx.stop, scripted)
         follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
         stack.callback(follower.close)
         policy = ActingPolicy(qconfig, follower)
@@ -110,10 +116,18 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         heartbeat = Heartbeat(session, ctx.run_id, "robot", ctx.instance, counters=counters,
                               info=lambda: {"task": task, "arm": robot.arm, "host": host})
         stack.callback(heartbeat.close)
-        policy.wait_for_first(config.weights_wait_s, ctx.stop)
+        adopted, evaluated = wait_for_first(policy, config.weights_wait_s, ctx.stop), 0
         first_id, n = int(time.time() * 1000), 0
         while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
-            policy.refresh()
+            adopted = refresh(policy) or adopted
+            if robot.evaluate and adopted is not None and evaluation_due(adopted.version, evaluated, config):
+                try:
+                    if evaluate_here(env, policy, config, qconfig, adopted, ctx):
+                        evaluated = adopted.version
+                except OperatorStopped as why:
+                    log.info("evaluation dropped: %s", why)
+                    channel.wait_resumed(ctx.stop)
+                continue
             episode_id = first_id + n
             seed = episode_seed(ctx.seed, ctx.instance, episode_id)
             try:
@@ -143,6 +157,57 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
             log.info("episode %d: %s after %d decisions (weights v%d)", n, r.reason, len(r.actions), policy.version)
         outbox.flush(timeout_s=2.0)
     return 0
+
+
+def refresh(policy: ActingPolicy) -> WeightsUpdate | None:
+    """``policy.refresh()`` that also returns the update it adopted (its step counts label an evaluation)."""
+    update = policy.follower.newer()
+    if update is None or not policy.follower.adopt(update, policy.agent.load_weights):
+        return None
+    policy.swaps += 1
+    return update
+
+
+def wait_for_first(policy: ActingPolicy, timeout_s: float, stop) -> WeightsUpdate | None:
+    """``policy.wait_for_first()`` that also returns the update it adopted (the first evaluation's label)."""
+    deadline = time.monotonic() + timeout_s
+    while not stop.is_set() and time.monotonic() < deadline:
+        policy.follower.fetch_latest(timeout_s=2.0)
+        update = refresh(policy)
+        if update is not None:
+            return update
+        stop.wait(0.5)
+    log.warning("no weights after %.0f s: acting with the initial random network", timeout_s)
+    return None
+
+
+def evaluation_due(version: int, evaluated: int, config: ActorConfig) -> bool:
+    """As the evaluator: the first weights, then a version at least ``eval_every_versions`` newer."""
+    return not evaluated or version >= evaluated + config.eval_every_versions or version < evaluated
+
+
+def evaluate_here(env: RobotEnv, policy: ActingPolicy, config: ActorConfig, qconfig: QAttentionConfig,
+                  update: WeightsUpdate, ctx: RoleContext) -> bool:
+    """The evaluator's greedy episodes on this arm, appended to ``metrics/eval.csv``; False if stopped part-way.
+
+    A run with a robot has no simulated evaluator, so this is its learning curve (the
+    dashboard's charts and bench/robot_learning.py read that file). Greedy episodes are
+    measured, not sent to the replay, as the evaluator's.
+    """
+    record = ctx.run_dir / "eval" if config.record_eval else None
+    first: list[Rollout] = []
+    result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append)
+    if result is None:
+        return False
+    success, mean_return, unreachable, n = result
+    if first:
+        write_snapshot(ctx.run_dir / "eval", policy, first[0], env.task_name, config.eval_seed, update)
+    (ctx.run_dir / "metrics").mkdir(parents=True, exist_ok=True)
+    append_eval_row(ctx.run_dir / "metrics" / "eval.csv", EvalResult(
+        update.version, update.learner_step, update.env_steps, n, success, mean_return, unreachable))
+    log.info("greedy evaluation of weights v%d: success %.0f%% over %d episodes, %.0f%% unreachable",
+             update.version, 100 * success, n, 100 * unreachable)
+    return True
 
 
 def terminal_stream():

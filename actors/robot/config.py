@@ -73,6 +73,8 @@ class RobotConfig:
     wait_for_reset: bool = True  #: wait for the operator's "reset done" before each episode
     verdict_wait_s: float = 30.0  #: after the last decision, wait this long for the operator's success / fail; then a timeout (reward 0)
     scripted_operator: bool = False  #: franky-sim only: a scripted success check (grasp frame within 2 cm of the target) stands in for the person
+    scene_bounds: tuple[float, ...] = ()  #: depth-0 voxel box the policy picks poses in (xmin ymin zmin xmax ymax zmax), metres, robot base frame, sent with every observation; empty = the safety workspace box, z from the table top
+    evaluate: bool = False  #: also play the evaluator's greedy episodes here (actor.eval_episodes on seeds actor.eval_seed..., every actor.eval_every_versions weights versions) into runs/<id>/metrics/eval.csv; for a run with no simulated evaluator
     franka: FrankaConfig = field(default_factory=FrankaConfig)  #: the Franka through franky
     safety: SafetyConfig = field(default_factory=SafetyConfig)  #: workspace box, table, step limit
     cameras: list[CameraConfig] = field(default_factory=lambda: [CameraConfig()])  #: the RGB-D cameras, one per Observation camera
@@ -85,3 +87,22 @@ class RobotConfig:
             raise ValueError("home needs 7 numbers: xyz + quaternion xyzw")
         if self.scripted_operator and self.arm != "franky-sim":
             raise ValueError("scripted_operator needs arm: franky-sim (it reads the simulated target)")
+        self.scene_bounds = tuple(float(v) for v in self.scene_bounds)
+        if len(self.scene_bounds) not in (0, 6):
+            raise ValueError("scene_bounds needs 6 numbers (min xyz, max xyz), or none for the safety workspace")
+        bounds = self.depth0_bounds
+        if not all(-1e3 < lo < hi < 1e3 for lo, hi in zip(bounds[:3], bounds[3:])):
+            raise ValueError(f"scene bounds {bounds} must be finite with min < max on every axis (is the table top below "
+                             "safety.workspace_max?)")
+
+    @property
+    def depth0_bounds(self) -> tuple[float, ...]:
+        """The policy's depth-0 box: ``scene_bounds``, else the safety workspace from the table top up.
+
+        Voxels outside the box the safety limits allow are poses the arm would refuse: an
+        untrained policy choosing among them would end nearly every episode unreachable.
+        """
+        if self.scene_bounds:
+            return self.scene_bounds
+        (x0, y0, _), (x1, y1, z1) = self.safety.workspace_min, self.safety.workspace_max
+        return (x0, y0, self.safety.table_height, x1, y1, z1)

@@ -2,21 +2,28 @@
 
 The operator gives waypoints (a grasp-frame pose and the gripper after it, one per line, in the
 terminal or a file); the arm executes each through the same ``RobotArm`` interface the actor
-uses, while a recorder observes at a fixed rate. Each waypoint's end is a keyframe. The file is
-the simulator's demo format (``actors.demos.mcap_io``), so the demo source sends it unchanged.
+uses, while a recorder observes at a fixed rate. The file is the simulator's demo format
+(``actors.demos.mcap_io``), so the demo source sends it unchanged.
 
-Joint velocities in the recorded frames are finite differences of the recorded joint positions:
-the arm's own reading jitters at rest on franky-sim, and keyframe discovery looks for the arm
-standing still exactly where the operator's waypoints end.
+Keyframes are where the operator says: each waypoint's end is one, except a via-point's (a
+waypoint only there to steer the path, e.g. around an obstacle). They are stored in the demo
+(``Demo.keyframes``) and the demo source uses them instead of discovering keyframes, which on a
+real arm also fires on jitter and pauses.
 
-Waypoint lines: ``x y z [qx qy qz qw] open|close`` (metres, robot base frame; the default
-orientation is top-down), ``#`` starts a comment.
+Joint velocities in the recorded frames are finite differences of the recorded joint positions
+(the arm's own reading jitters at rest on franky-sim), so the reference's keyframe discovery
+still finds the waypoints' ends in files that predate operator keyframes.
+
+Waypoint lines: ``x y z [qx qy qz qw] open|close [via]`` (metres, robot base frame; the default
+orientation is top-down; a trailing ``via`` makes it a via-point), ``#`` starts a comment. The
+last waypoint ends the demo, so it cannot be a via-point.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,26 +33,39 @@ from actors.robot.interface import RobotArm
 from protocol.observation import Observation
 
 TOP_DOWN = (1.0, 0.0, 0.0, 0.0)
+WAYPOINT_SYNTAX = "x y z [qx qy qz qw] open|close [via]"
 
 
 @dataclass
 class Waypoint:
-    """Where the grasp frame goes, then what the gripper does."""
+    """Where the grasp frame goes, then what the gripper does; a via-point's end is no keyframe."""
 
     pose: np.ndarray  #: xyz + quaternion xyzw
     gripper_open: bool
+    keyframe: bool = True
 
 
 def parse_waypoint(line: str) -> Waypoint | None:
-    """One waypoint from ``x y z [qx qy qz qw] open|close``; None for a blank or comment line."""
+    """One waypoint from ``x y z [qx qy qz qw] open|close [via]``; None for a blank or comment line."""
     words = line.split("#", 1)[0].split()
     if not words:
         return None
-    if words[-1] not in ("open", "close") or len(words) not in (4, 8):
-        raise ValueError(f"waypoint {line.strip()!r}: expected 'x y z [qx qy qz qw] open|close'")
-    numbers = [float(w) for w in words[:-1]]
+    via = words[-1] == "via"
+    words = words[:-1] if via else words
+    numbers = _finite_numbers(words[:-1])
+    if not words or words[-1] not in ("open", "close") or numbers is None or len(numbers) not in (3, 7):
+        raise ValueError(f"waypoint {line.strip()!r}: expected '{WAYPOINT_SYNTAX}'")
     pose = np.array(numbers if len(numbers) == 7 else [*numbers, *TOP_DOWN], dtype=float)
-    return Waypoint(pose, words[-1] == "open")
+    return Waypoint(pose, words[-1] == "open", keyframe=not via)
+
+
+def _finite_numbers(words: list[str]) -> list[float] | None:
+    """The words as finite floats, or None if any is not one."""
+    try:
+        numbers = [float(w) for w in words]
+    except ValueError:
+        return None
+    return numbers if all(np.isfinite(numbers)) else None
 
 
 class Recorder:
@@ -101,7 +121,7 @@ class Recorder:
 def record_robot_demo(arm: RobotArm, waypoints: list[Waypoint], task: str, seed: int, hz: float = 10.0) -> Demo:
     """Execute the waypoints and record them; a refused or failed waypoint ends the demo as unsuccessful."""
     recorder = Recorder(arm, hz)
-    ends: list[int] = []
+    ends: list[int] = []  # where each waypoint reached so far ended
     try:
         recorder.snap()
         for waypoint in waypoints:
@@ -110,16 +130,20 @@ def record_robot_demo(arm: RobotArm, waypoints: list[Waypoint], task: str, seed:
             recorder.record(False)
             if not result.reached:
                 break
-            ends.append(recorder.snap())  # the arm stands still here: a keyframe
+            ends.append(recorder.snap())  # the arm stands still here
     finally:
         recorder.close()
+    keyframes = [end for end, waypoint in zip(ends, waypoints) if waypoint.keyframe]
     return Demo(task=task, seed=seed, success=len(ends) == len(waypoints), observations=recorder.frames,
-                waypoint_frames=ends, control_hz=int(round(hz)))
+                waypoint_frames=ends, keyframes=keyframes, control_hz=int(round(hz)))
 
 
-def read_waypoints(lines) -> list[Waypoint]:
-    """Every waypoint of a text (file or terminal), skipping blanks and comments."""
-    return [wp for wp in (parse_waypoint(line) for line in lines) if wp is not None]
+def read_waypoints(lines: Iterable[str]) -> list[Waypoint]:
+    """Every waypoint of a text (file or terminal), skipping blanks and comments; ValueError on a bad one."""
+    waypoints = [wp for wp in (parse_waypoint(line) for line in lines) if wp is not None]
+    if waypoints and not waypoints[-1].keyframe:
+        raise ValueError("the last waypoint ends the demo, so it is a keyframe: drop its 'via'")
+    return waypoints
 
 
 def record_demos(config, waypoints: list[Waypoint], episodes: int, out_dir, ask=input) -> list:
@@ -145,6 +169,7 @@ def record_demos(config, waypoints: list[Waypoint], episodes: int, out_dir, ask=
             arm.move_to(np.asarray(robot.home), gripper_open=True)
             ask(f"demo {len(written) + 1}/{episodes}: set the scene up, then press Enter ")
             demo = record_robot_demo(arm, waypoints, config.sim.task, seed)
+            demo.scene_bounds = robot.depth0_bounds  # the robot's box, not the simulated task's
             if not demo.success:
                 print(f"demo failed at waypoint {len(demo.waypoint_frames) + 1}; again", flush=True)
                 arm.recover()

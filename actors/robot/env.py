@@ -5,7 +5,9 @@ end of an episode come from the operator: "success" gives the simulator's succes
 ends the episode, "fail" ends it with 0, and an episode that runs out of decisions waits
 ``verdict_wait_s`` for a word before it ends as a timeout with reward 0. A refused or failed
 move ends the episode as "unreachable", as in the simulator. Each episode starts with the arm
-at its home pose and, unless told otherwise, the operator's "reset done".
+at its home pose and, unless told otherwise, the operator's "reset done". Every observation
+carries the robot's depth-0 box (``robot.scene_bounds``, by default the safety workspace), so
+the policy picks among poses the safety limits let through.
 
 An operator stop mid-episode raises :class:`OperatorStopped`: a cut-short episode is not data.
 """
@@ -17,6 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
+from actors.actor_loop import stamp_scene_bounds
 from actors.robot.config import RobotConfig
 from actors.robot.interface import RobotArm
 from actors.robot.operator import OperatorChannel
@@ -45,10 +48,10 @@ class RobotEnv:
     """A robot arm, an operator and a task, with PandaEnv's interface."""
 
     def __init__(self, arm: RobotArm, channel: OperatorChannel, config: RobotConfig, task: str,
-                 episode_length: int, scene_bounds, stop: threading.Event,
+                 episode_length: int, stop: threading.Event,
                  scripted: ScriptedOperator | None = None, unreachable_reward: float = 0.0) -> None:
         self.arm, self.channel, self.config = arm, channel, config
-        self.task_name, self.episode_length, self.scene_bounds = task, episode_length, tuple(scene_bounds)
+        self.task_name, self.episode_length, self.scene_bounds = task, episode_length, config.depth0_bounds
         self.stop, self.scripted, self.unreachable_reward = stop, scripted, unreachable_reward
         self.steps = 0
         self.seed: int | None = None
@@ -70,7 +73,7 @@ class RobotEnv:
             if self.channel.wait_for({OperatorAction.RESET_DONE}, self.stop) is None:
                 raise OperatorStopped("stopped while waiting for reset done")
         self.steps = 0
-        return self.arm.observe(0)
+        return self.observe()
 
     def step(self, action: np.ndarray) -> StepResult:
         action = np.asarray(action, dtype=float)
@@ -82,7 +85,7 @@ class RobotEnv:
         if result.status == "failed" and result.reason in ("control_error", "connection_lost"):
             self.arm.recover()  # the episode ends; the next one starts from a working arm
         self.steps += 1
-        obs = self.arm.observe(self.steps)
+        obs = self.observe()
         info = {"timings": result.timings, "move_s": result.seconds}
         if not result.reached:
             info["reason"] = result.reason
@@ -102,7 +105,9 @@ class RobotEnv:
         return self.arm.safety.allows(np.asarray(action, dtype=float)[:7], self.arm.grasp_pose()[:3])
 
     def observe(self) -> Observation:
-        return self.arm.observe(self.steps)
+        observation = self.arm.observe(self.steps)
+        stamp_scene_bounds([observation], self.scene_bounds)  # the learner voxelises it in the robot's box
+        return observation
 
     def _wait_resumed(self) -> None:
         if self.channel.paused and not self.channel.wait_resumed(self.stop):

@@ -3,6 +3,7 @@
 // Unchanged answers (same ETag: the server answered the browser's revalidation with a 304) are not redrawn.
 import { LearningCharts } from "./charts.js";
 import { EpisodesPanel } from "./episodes.js";
+import { renderOperator, stopOnEscape } from "./operator.js";
 import { AttentionView } from "./qattention3d.js";
 import { renderActors, renderRoles } from "./roles.js";
 import { num, pct, seconds } from "./format.js";
@@ -16,6 +17,7 @@ const charts = new LearningCharts($("charts"));
 const episodes = new EpisodesPanel($("episodes"));
 const attention = new AttentionView($("qattention"));
 window.c2farm.charts = charts.plots;
+stopOnEscape($("operators"));
 let history = null;
 
 function summaryLine(s) {
@@ -59,6 +61,7 @@ function poll(name, url, ms, render) {
 poll("status", "api/status", REFRESH_MS, s => {
   $("summary").textContent = summaryLine(s);
   $("updated").textContent = `updated ${new Date().toLocaleTimeString()}`;
+  renderOperator($("operator-panel"), $("operators"), s);
   renderActors($("actor-rows"), s);
   renderRoles($("role-rows"), $("roles-summary"), s);
 });

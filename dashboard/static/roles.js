@@ -1,7 +1,7 @@
-// The Actors table (one row per actor, evaluator and demo source) and the collapsed process table.
+// The Actors table (one row per actor, robot actor, evaluator and demo source) and the collapsed process table.
 import { esc, num, pct, seconds, DASH } from "./format.js";
 
-const ACTING_ROLES = { actor: "actor", eval: "evaluator", demos: "demo source" };
+const ACTING_ROLES = { actor: "actor", robot: "robot", eval: "evaluator", demos: "demo source" };
 
 /** Counter groups of the process table: [prefix, heading, what the group means]. First match wins. */
 const GROUPS = [
@@ -65,7 +65,7 @@ export function renderActors(tbody, status) {
     const rate = r.alive && c.env_steps != null ? envRates.update(r.instance, c.env_steps, status.time) : null;
     const episodes = isDemo ? c.demo_episodes : isEval ? null : c.episodes;
     const success = isEval ? c.eval_success : c.success_rate;
-    const unreachable = isEval ? c.eval_unreachable : c.unreachable_rate;
+    const unreachable = isEval ? c.eval_unreachable : c.unreachable_rate ?? (c.episodes ? c.unreachable / c.episodes : null);
     return `<tr data-role="${esc(r.role)}" data-instance="${esc(r.instance)}">` +
       `<td>${esc(r.instance)}</td><td>${ACTING_ROLES[r.role]}</td>${stateCell(r)}` +
       `<td class="n">${lag == null ? DASH : num(lag)}</td><td class="n">${num(episodes)}</td>` +

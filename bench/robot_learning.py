@@ -1,0 +1,117 @@
+"""The robot's learning curve: C2F-ARM learning franky-sim's reach task as a robot actor, under a budget.
+
+    python bench/robot_learning.py --minutes 60                        # one run (a rerun resumes it), then its curve
+    python bench/robot_learning.py --minutes 60 --set actor.eval_episodes=5 --tag eval5
+    python bench/robot_learning.py --plot-only                         # re-read the run, run nothing
+
+The whole system runs as a user would run it on a robot, with franky-sim for the arm:
+``c2farm launch --robot franky-sim --camera mujoco`` with the roles router, replay, dashboard,
+learner and robot (no simulated actors, no simulated evaluator, no demos). A scripted operator
+(``robot.scripted_operator``) moves the target before each episode and says "success" when the
+grasp frame is within 2 cm of it. With ``robot.evaluate`` the robot actor also plays the
+evaluator's greedy episodes (fixed seeds, so fixed targets) every ``actor.eval_every_versions``
+weights versions, into ``runs/<id>/metrics/eval.csv``, the file bench/learning.py reads.
+
+Ports are picked free (router, replay's ZeroMQ, dashboard), so this runs beside another run.
+Budget bookkeeping, reading and plotting are bench/learning.py's (``runs/<id>/bench_budget.json``).
+
+Outputs: ``runs/<id>/learning_curve.{csv,png}`` and ``<results-dir>/robot-reach-<preset>[-<tag>].{csv,png}``,
+one row per greedy evaluation: minutes, env steps, learner step, weights version, success rate,
+episodes, unreachable rate (poses the safety limits refused or the arm could not take).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+from typing import Optional, Sequence
+
+import learning  # bench/learning.py: budget, launcher supervision, curves, plots
+
+ROBOT_ROLES = "router,replay,dashboard,learner,robot"
+
+
+def launch_command(args: argparse.Namespace) -> list[str]:
+    """``c2farm launch`` of the robot run on free ports; the user's ``--set`` items come last, so they win."""
+    from deploy.endpoints import free_port
+
+    cmd = [sys.executable, "-m", "deploy.cli", "launch", "--preset", args.preset, "--task", "reach_target",
+           "--run-id", args.run_id, "--robot", "franky-sim", "--camera", "mujoco", "--roles", ROBOT_ROLES,
+           "--router-port", "0", "--dashboard-port", str(args.dashboard_port),
+           "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{free_port()}", "--set", f"run.runs_dir={args.runs_dir}",
+           "--set", f"run.seed={args.seed}", "--set", "robot.scripted_operator=true", "--set", "robot.evaluate=true"]
+    for item in args.set:
+        cmd += ["--set", item]
+    return cmd
+
+
+def results_stem(args: argparse.Namespace) -> str:
+    return f"robot-reach-{args.preset}" + (f"-{args.tag}" if args.tag else "")
+
+
+def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock budget of the run, over all reruns")
+    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
+    parser.add_argument("--seed", type=int, default=1, help="run.seed")
+    parser.add_argument("--tag", default=None, help="names a variant in the run id and result files")
+    parser.add_argument("--run-id", default=None, help="run id (default: learn-robot-reach-<preset>[-<tag>]-s<seed>)")
+    parser.add_argument("--runs-dir", default="runs", help="where runs live")
+    parser.add_argument("--results-dir", default="bench/results", help="where the curve goes")
+    parser.add_argument("--dashboard-port", type=int, default=0, help="dashboard port (0: a free one, printed)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    parser.add_argument("--thresholds", type=float, nargs="+", default=[0.5, 0.8], help="success rates to time")
+    parser.add_argument("--plot-only", action="store_true", help="only re-read and re-plot the run")
+    args = parser.parse_args(argv)
+    args.run_id = args.run_id or f"learn-{results_stem(args)}-s{args.seed}"
+    return args
+
+
+def train(args: argparse.Namespace) -> bool:
+    """The run's (remaining) budget; False if the launcher failed by itself."""
+    run_dir = Path(args.runs_dir) / args.run_id
+    left = learning.load_budget(run_dir).remaining(args.minutes * 60)
+    if left <= 0:
+        print(f"{args.run_id}: budget of {args.minutes:g} min already spent", flush=True)
+        return True
+    cmd = launch_command(args)
+    print(f"{args.run_id}: {left / 60:.1f} of {args.minutes:g} min left\n+ {' '.join(cmd)}", flush=True)
+    code = learning.run_budgeted(cmd, run_dir, args.minutes * 60)
+    if code is not None:
+        print(f"{args.run_id}: launcher exited by itself with code {code}", flush=True)
+    return not code
+
+
+def write_results(args: argparse.Namespace) -> learning.Curve:
+    """The run's greedy evaluations as a CSV and a PNG under the results dir (and in the run dir)."""
+    run_dir = Path(args.runs_dir) / args.run_id
+    learning.plot(run_dir)
+    curve = learning.read_eval(run_dir)
+    if curve:
+        stem = Path(args.results_dir) / results_stem(args)
+        learning.write_csv(stem.with_suffix(".csv"), curve, learning.curve_fields(curve))
+        learning.plot_seeds({args.run_id: curve}, curve, stem.with_suffix(".png"), f"{stem.name}: greedy success")
+        print(f"wrote {stem}.csv and {stem}.png")
+        print(learning.summarise({args.run_id: curve}, curve, args.thresholds))
+    return curve
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = parse_args(argv)
+    ok = True
+    if not args.plot_only:
+        previous = signal.signal(signal.SIGTERM, learning._interrupt)
+        try:
+            ok = train(args)
+        except KeyboardInterrupt:
+            print("interrupted; rerun the same command to resume", flush=True)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    curve = write_results(args)
+    return 0 if ok and curve else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
