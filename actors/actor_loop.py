@@ -21,6 +21,7 @@ from actors.weights import WeightsFollower
 from protocol.episode import Episode, stack_observations
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
+from protocol.messages import WeightsUpdate
 from protocol.observation import Observation
 from protocol.role import RoleContext
 from qattention.agent import C2FARM
@@ -147,6 +148,7 @@ class ActingPolicy:
         self.agent = C2FARM(qconfig, device=torch.device("cpu"))
         self.follower = follower
         self.swaps = 0
+        self.adopted: WeightsUpdate | None = None  #: the update now running (its steps label an evaluation)
 
     @property
     def version(self) -> int:
@@ -158,6 +160,7 @@ class ActingPolicy:
         if update is None or not self.follower.adopt(update, self.agent.load_weights):
             return False  # nothing new, or it did not fit the networks (counted; the old weights stay)
         self.swaps += 1
+        self.adopted = update
         return True
 
     def wait_for_first(self, timeout_s: float, stop) -> None:

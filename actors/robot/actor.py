@@ -116,10 +116,12 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         heartbeat = Heartbeat(session, ctx.run_id, "robot", ctx.instance, counters=counters,
                               info=lambda: {"task": task, "arm": robot.arm, "host": host})
         stack.callback(heartbeat.close)
-        adopted, evaluated = wait_for_first(policy, config.weights_wait_s, ctx.stop), 0
+        policy.wait_for_first(config.weights_wait_s, ctx.stop)
+        evaluated = 0
         first_id, n = int(time.time() * 1000), 0
         while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
-            adopted = refresh(policy) or adopted
+            policy.refresh()
+            adopted = policy.adopted
             if robot.evaluate and adopted is not None and evaluation_due(adopted.version, evaluated, config):
                 try:
                     if evaluate_here(env, policy, config, qconfig, adopted, ctx):
@@ -157,28 +159,6 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
             log.info("episode %d: %s after %d decisions (weights v%d)", n, r.reason, len(r.actions), policy.version)
         outbox.flush(timeout_s=2.0)
     return 0
-
-
-def refresh(policy: ActingPolicy) -> WeightsUpdate | None:
-    """``policy.refresh()`` that also returns the update it adopted (its step counts label an evaluation)."""
-    update = policy.follower.newer()
-    if update is None or not policy.follower.adopt(update, policy.agent.load_weights):
-        return None
-    policy.swaps += 1
-    return update
-
-
-def wait_for_first(policy: ActingPolicy, timeout_s: float, stop) -> WeightsUpdate | None:
-    """``policy.wait_for_first()`` that also returns the update it adopted (the first evaluation's label)."""
-    deadline = time.monotonic() + timeout_s
-    while not stop.is_set() and time.monotonic() < deadline:
-        policy.follower.fetch_latest(timeout_s=2.0)
-        update = refresh(policy)
-        if update is not None:
-            return update
-        stop.wait(0.5)
-    log.warning("no weights after %.0f s: acting with the initial random network", timeout_s)
-    return None
 
 
 def evaluation_due(version: int, evaluated: int, config: ActorConfig) -> bool:
