@@ -1,14 +1,17 @@
 """The robot's learning curve: C2F-ARM learning franky-sim's reach task as a robot actor, under a budget.
 
     python bench/robot_learning.py --minutes 60                        # one run (a rerun resumes it), then its curve
+    python bench/robot_learning.py --minutes 60 --demos 0 --tag nodemos # no demonstrations
     python bench/robot_learning.py --minutes 60 --set actor.eval_episodes=5 --tag eval5
     python bench/robot_learning.py --plot-only                         # re-read the run, run nothing
 
-The whole system runs as a user would run it on a robot, with franky-sim for the arm:
-``c2farm launch --robot franky-sim --camera mujoco`` with the roles router, replay, dashboard,
-learner and robot (no simulated actors, no simulated evaluator, no demos). A scripted operator
+The whole system runs as a user would run it on a robot, with franky-sim for the arm. First
+``c2farm robot-demos`` records ``--demos`` demonstrations (the paper's 3 per real task) into the
+run directory, before the budget starts, as a person would before training; then
+``c2farm launch --robot franky-sim --camera mujoco`` runs the roles router, replay, dashboard,
+learner, demo source and robot (no simulated actors or evaluator). A scripted operator
 (``robot.scripted_operator``) moves the target before each episode and says "success" when the
-grasp frame is within 2 cm of it. With ``robot.evaluate`` the robot actor also plays the
+grasp frame is within 2 cm of it, and demonstrates it: one top-down move onto the target. With ``robot.evaluate`` the robot actor also plays the
 evaluator's greedy episodes (fixed seeds, so fixed targets) every ``actor.eval_every_versions``
 weights versions, into ``runs/<id>/metrics/eval.csv``, the file bench/learning.py reads.
 
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import subprocess
 import sys
 from pathlib import Path
 from typing import Optional, Sequence
@@ -31,20 +35,46 @@ from typing import Optional, Sequence
 import learning  # bench/learning.py: budget, launcher supervision, curves, plots
 
 ROBOT_ROLES = "router,replay,dashboard,learner,robot"
+#: franky-sim with the MuJoCo stand-in camera and the scripted operator, for the demos and the run alike.
+ROBOT_FLAGS = ["--task", "reach_target", "--robot", "franky-sim", "--camera", "mujoco",
+               "--set", "robot.scripted_operator=true"]
+
+
+def demos_dir(args: argparse.Namespace) -> Path:
+    """``demos.directory`` of the run: its demos live in the run directory."""
+    return Path(args.runs_dir) / args.run_id / "demos-robot"
+
+
+def user_sets(args: argparse.Namespace) -> list[str]:
+    return [word for item in args.set for word in ("--set", item)]
+
+
+def demos_command(args: argparse.Namespace, episodes: int) -> list[str]:
+    """``c2farm robot-demos``: the scripted operator demonstrates ``episodes`` more reaches."""
+    return [sys.executable, "-m", "deploy.cli", "robot-demos", "--preset", args.preset, *ROBOT_FLAGS,
+            "--episodes", str(episodes), "--set", f"demos.directory={demos_dir(args)}", *user_sets(args)]
+
+
+def record_demos(args: argparse.Namespace) -> bool:
+    """Record the demos the run still lacks (a rerun keeps the ones it has); False if recording failed."""
+    have = len(list(demos_dir(args).glob("*/*.mcap")))
+    if have >= args.demos:
+        return True
+    cmd = demos_command(args, args.demos - have)
+    print(f"{args.run_id}: recording {args.demos - have} demos\n+ {' '.join(cmd)}", flush=True)
+    return subprocess.run(cmd).returncode == 0
 
 
 def launch_command(args: argparse.Namespace) -> list[str]:
     """``c2farm launch`` of the robot run on free ports; the user's ``--set`` items come last, so they win."""
     from deploy.endpoints import free_port
 
-    cmd = [sys.executable, "-m", "deploy.cli", "launch", "--preset", args.preset, "--task", "reach_target",
-           "--run-id", args.run_id, "--robot", "franky-sim", "--camera", "mujoco", "--roles", ROBOT_ROLES,
-           "--router-port", "0", "--dashboard-port", str(args.dashboard_port),
-           "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{free_port()}", "--set", f"run.runs_dir={args.runs_dir}",
-           "--set", f"run.seed={args.seed}", "--set", "robot.scripted_operator=true", "--set", "robot.evaluate=true"]
-    for item in args.set:
-        cmd += ["--set", item]
-    return cmd
+    roles = ROBOT_ROLES + (",demo_source" if args.demos else "")
+    return [sys.executable, "-m", "deploy.cli", "launch", "--preset", args.preset, *ROBOT_FLAGS,
+            "--run-id", args.run_id, "--roles", roles, "--router-port", "0", "--dashboard-port", str(args.dashboard_port),
+            "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{free_port()}", "--set", f"run.runs_dir={args.runs_dir}",
+            "--set", f"run.seed={args.seed}", "--set", "robot.evaluate=true",
+            "--set", f"demos.directory={demos_dir(args)}", "--set", f"demos.episodes={args.demos}", *user_sets(args)]
 
 
 def results_stem(args: argparse.Namespace) -> str:
@@ -56,6 +86,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock budget of the run, over all reruns")
     parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
     parser.add_argument("--seed", type=int, default=1, help="run.seed")
+    parser.add_argument("--demos", type=int, default=3, help="scripted demos recorded before the run (the paper: 3); 0 = none")
     parser.add_argument("--tag", default=None, help="names a variant in the run id and result files")
     parser.add_argument("--run-id", default=None, help="run id (default: learn-robot-reach-<preset>[-<tag>]-s<seed>)")
     parser.add_argument("--runs-dir", default="runs", help="where runs live")
@@ -76,6 +107,9 @@ def train(args: argparse.Namespace) -> bool:
     if left <= 0:
         print(f"{args.run_id}: budget of {args.minutes:g} min already spent", flush=True)
         return True
+    if not record_demos(args):
+        print(f"{args.run_id}: recording the demos failed", flush=True)
+        return False
     cmd = launch_command(args)
     print(f"{args.run_id}: {left / 60:.1f} of {args.minutes:g} min left\n+ {' '.join(cmd)}", flush=True)
     code = learning.run_budgeted(cmd, run_dir, args.minutes * 60)

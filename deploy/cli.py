@@ -187,7 +187,8 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
         description="Drive the configured arm (robot.arm) through waypoints 'x y z [qx qy qz qw] open|close [via]', "
         "one per line, recording every demo into the run's demo folder, where the demo source sends it from. "
         "Each waypoint's end is a keyframe the agent learns from, except a via-point's (a trailing 'via': "
-        "only there to steer the path); the last waypoint cannot be one.",
+        "only there to steer the path); the last waypoint cannot be one. On franky-sim with "
+        "robot.scripted_operator=true the scripted operator demonstrates its reach task instead (no waypoints).",
     )
     _common(p)
     _robot_flags(p)
@@ -348,12 +349,14 @@ def _robot_demos(args, config) -> int:
     from actors.robot.demos import read_waypoints, record_demos
     from deploy.roles import demo_dir
 
-    if args.waypoints:
+    if config.robot.scripted_operator:  # franky-sim: the scripted operator demonstrates its reach task
+        waypoints = []
+    elif args.waypoints:
         waypoints = read_waypoints(Path(args.waypoints).read_text().splitlines())
     else:
         print("waypoints, one per line: x y z [qx qy qz qw] open|close [via]; an empty line ends", flush=True)
         waypoints = read_waypoints(iter(lambda: sys.stdin.readline().rstrip("\n"), ""))
-    if not waypoints:
+    if not waypoints and not config.robot.scripted_operator:
         print("c2farm: no waypoints", file=sys.stderr)
         return 2
     written = record_demos(config, waypoints, args.episodes or config.demos.episodes, demo_dir(config))

@@ -1,12 +1,14 @@
-"""A real robot is one more actor: router, replay, learner, dashboard and a robot actor on franky-sim.
+"""A real robot is one more actor: router, replay, learner, dashboard, demo source and a robot actor on franky-sim.
 
-Every role is a real process started by ``c2farm launch --robot franky-sim --camera mujoco``: the
-robot actor drives franky-sim through franky over libfranka's protocol and sees the scene through
-the MuJoCo RGB-D stand-in. The test is the person: it says "reset done", "success" and "fail"
-through the dashboard's HTTP API. Episodes reach the replay, the learner trains on them (each
-sample voxelised in the robot's own box, which its observations carry), the robot actor follows
-newer weights and, with ``robot.evaluate``, scores them greedily into metrics/eval.csv. The
-learner and the replay are the unchanged roles.
+First ``c2farm robot-demos`` records a demo on franky-sim (the scripted operator demonstrates its
+reach). Then every role is a real process started by ``c2farm launch --robot franky-sim --camera
+mujoco``: the demo source sends the robot demo like a simulated one, the robot actor drives
+franky-sim through franky over libfranka's protocol and sees the scene through the MuJoCo RGB-D
+stand-in. The test is the person: it says "reset done", "success" and "fail" through the
+dashboard's HTTP API. Demo and robot episodes reach the one replay, the learner trains on both
+(each sample voxelised in the robot's own box, which every observation carries), the robot actor
+follows newer weights and, with ``robot.evaluate``, scores them greedily into metrics/eval.csv.
+The learner and the replay are the unchanged roles.
 """
 
 from __future__ import annotations
@@ -28,13 +30,21 @@ pytest.importorskip("franky_sim")
 
 @pytest.mark.timeout(900)
 def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
+    robot_demos = ["--robot", "franky-sim", "--camera", "mujoco", "--task", "reach_target",
+                   "--set", f"demos.directory={tmp_path / 'demos'}", "--set", "demos.episodes=1"]
+    recorded = subprocess.run(
+        [sys.executable, "-m", "deploy.cli", "robot-demos", *robot_demos, "--set", "robot.scripted_operator=true"],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )
+    assert recorded.returncode == 0, recorded.stdout + recorded.stderr
+    assert "1 robot demos in" in recorded.stdout
+
     ports = {name: get_free_port() for name in ("router", "dashboard", "zmq")}
     launcher = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "launch", "--run-id", "robot-e2e", "--runs-dir", str(tmp_path / "runs"),
          "--router-port", str(ports["router"]), "--dashboard-port", str(ports["dashboard"]),
          "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{ports['zmq']}",
-         "--robot", "franky-sim", "--camera", "mujoco", "--roles", "router,replay,dashboard,learner,robot",
-         "--task", "reach_target", *TINY_TRAINING,
+         "--roles", "router,replay,dashboard,learner,demo_source,robot", *robot_demos, *TINY_TRAINING,
          "--set", "robot.franka.dynamics_factor=0.5", "--set", "robot.verdict_wait_s=1",
          "--set", "actor.weights_wait_s=1", "--set", "launch.liveness_grace_s=180",
          "--set", "robot.evaluate=true", "--set", "actor.eval_episodes=1", "--set", "actor.eval_min_episodes=1",
@@ -69,6 +79,9 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
             )
             robot = first["robot-0"]["counters"]
             assert robot["episodes"] >= 2 and robot["operator_reset_done"] >= 2
+            replay = wait_for(lambda: (s := status()) and s["replay"]["counters"].get("demo_transitions", 0) > 0
+                              and s["replay"]["counters"], 120, "the robot demo in the replay")
+            assert replay["agent_transitions"] > 0  # the robot's episodes beside the demo's, in one replay
             wait_for(
                 lambda: (s := status()) and (s["summary"]["updates"] or 0) >= 2
                 and s["robot-0"]["counters"].get("weights_version", 0) >= 2 and s,
@@ -79,6 +92,7 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
                      "a greedy evaluation on the robot")
             row = dict(zip(*[line.split(",") for line in evaluations.read_text().splitlines()[:2]]))
             assert int(row["weights_version"]) >= 1 and int(row["episodes"]) == 1
+            assert status()["replay"]["counters"]["demo_transitions_sampled"] > 0  # the learner trained on the demo
         done.set()
         stop_launcher(launcher, children)
     finally:

@@ -150,29 +150,38 @@ def record_demos(config, waypoints: list[Waypoint], episodes: int, out_dir, ask=
     """``episodes`` demos of ``waypoints`` on the configured arm, written as MCAP into ``out_dir``.
 
     Before each demo the operator sets the scene up and confirms (``ask``); a failed demo is
-    not written and is tried again.
+    not written and is tried again. With ``robot.scripted_operator`` (franky-sim) the scripted
+    operator sets each scene up and gives the waypoints instead, seeded by the demo's number.
     """
     import contextlib
     from pathlib import Path
 
     from actors.demos.mcap_io import write_demo
     from actors.robot.actor import open_arm
+    from actors.robot.env import ReachOperator
+    from actors.robot.operator import OperatorChannel
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     robot = config.robot
-    written = []
+    written, failures = [], 0
     with contextlib.ExitStack() as stack:
-        arm, _ = open_arm(robot, stack)
+        arm, sim = open_arm(robot, stack)
+        scripted = ReachOperator(sim, OperatorChannel()) if robot.scripted_operator else None
         seed = len(list(out.glob("*.mcap")))
         while len(written) < episodes:
             arm.move_to(np.asarray(robot.home), gripper_open=True)
-            ask(f"demo {len(written) + 1}/{episodes}: set the scene up, then press Enter ")
-            demo = record_robot_demo(arm, waypoints, config.sim.task, seed)
+            if scripted is None:
+                ask(f"demo {len(written) + 1}/{episodes}: set the scene up, then press Enter ")
+            plan = waypoints if scripted is None else scripted.demonstration(np.random.default_rng(seed))
+            demo = record_robot_demo(arm, plan, config.sim.task, seed)
             demo.scene_bounds = robot.depth0_bounds  # the robot's box, not the simulated task's
             if not demo.success:
                 print(f"demo failed at waypoint {len(demo.waypoint_frames) + 1}; again", flush=True)
                 arm.recover()
+                failures += 1
+                if scripted is not None and failures > 3:  # no person to fix the scene: the same seed fails again
+                    raise RuntimeError(f"the scripted demo of seed {seed} failed {failures} times")
                 continue
             path = out / f"robot-{seed:04d}.mcap"
             write_demo(path, demo)
