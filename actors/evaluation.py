@@ -129,7 +129,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             evaluations += 1
             latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return,
                                 unreachable)
-            _append_csv(csv_path, latest)
+            append_eval_row(csv_path, latest)
             if board is not None:
                 for name, value in (("success_rate", success), ("mean_return", mean_return),
                                     ("unreachable_rate", unreachable)):
@@ -172,7 +172,8 @@ def _tensorboard(directory: Path):
         return None
 
 
-def _append_csv(path: Path, result: EvalResult) -> None:
+def append_eval_row(path: Path, result: EvalResult) -> None:
+    """One evaluation as a row of ``metrics/eval.csv`` (the header first in a new file); the robot actor writes it too."""
     new = not path.exists()
     with path.open("a", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=EVAL_FIELDS)

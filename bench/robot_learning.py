@@ -36,8 +36,10 @@ import learning  # bench/learning.py: budget, launcher supervision, curves, plot
 
 ROBOT_ROLES = "router,replay,dashboard,learner,robot"
 #: franky-sim with the MuJoCo stand-in camera and the scripted operator, for the demos and the run alike.
+#: The arm moves at 0.3 of the Panda's limits (robot.franka's 0.1 is the cautious start on a real arm):
+#: franky-sim runs slower than real time here, and this measures learning, not caution.
 ROBOT_FLAGS = ["--task", "reach_target", "--robot", "franky-sim", "--camera", "mujoco",
-               "--set", "robot.scripted_operator=true"]
+               "--set", "robot.scripted_operator=true", "--set", "robot.franka.dynamics_factor=0.3"]
 
 
 def demos_dir(args: argparse.Namespace) -> Path:

@@ -27,6 +27,8 @@ from protocol.messages import Status, decode
 log = logging.getLogger(__name__)
 
 STOPPED_STATES = ("stopped", "failed")
+#: Roles whose episodes feed the replay: simulated actors and robots.
+ACTING_ROLES = ("actor", "robot")
 
 
 @dataclass
@@ -138,8 +140,10 @@ class RoleTable:
 def summarise(roles: list[dict]) -> dict:
     """The few numbers a person watches during training, from the alive roles' counters.
 
-    ``policy_lag`` is, per actor, how many weights versions it is behind the learner.
+    Env steps and episodes add up every acting role: simulated actors and robots alike.
+    ``policy_lag`` is, per acting instance, how many weights versions it is behind the learner.
     """
+    acting = [r for r in roles if r["role"] in ACTING_ROLES and r["alive"]]
 
     def counters(role: str) -> list[dict]:
         return [r["counters"] for r in roles if r["role"] == role and r["alive"]]
@@ -148,18 +152,17 @@ def summarise(roles: list[dict]) -> dict:
     replay = next(iter(counters("replay")), {})
     evaluation = next(iter(counters("eval")), {})
     version = learner.get("weights_version")
-    actors = [r for r in roles if r["role"] == "actor" and r["alive"]]
     return {
         "updates": learner.get("updates"),
         "updates_per_s": learner.get("updates_per_s"),
-        "env_steps": sum(c.get("env_steps", 0.0) for c in counters("actor")),
-        "episodes": sum(c.get("episodes", 0.0) for c in counters("actor")),
+        "env_steps": sum(r["counters"].get("env_steps", 0.0) for r in acting),
+        "episodes": sum(r["counters"].get("episodes", 0.0) for r in acting),
         "replay_size": replay.get("size_transitions"),
         "samples_per_insert": replay.get("samples_per_insert"),
         "weights_version": version,
         "policy_lag": {
             r["instance"]: version - r["counters"]["weights_version"]
-            for r in actors
+            for r in acting
             if version is not None and "weights_version" in r["counters"]
         },
         "eval_success": evaluation.get("eval_success"),

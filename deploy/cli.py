@@ -349,19 +349,38 @@ def _robot_demos(args, config) -> int:
     from actors.robot.demos import read_waypoints, record_demos
     from deploy.roles import demo_dir
 
-    if config.robot.scripted_operator:  # franky-sim: the scripted operator demonstrates its reach task
-        waypoints = []
-    elif args.waypoints:
-        waypoints = read_waypoints(Path(args.waypoints).read_text().splitlines())
-    else:
-        print("waypoints, one per line: x y z [qx qy qz qw] open|close [via]; an empty line ends", flush=True)
-        waypoints = read_waypoints(iter(lambda: sys.stdin.readline().rstrip("\n"), ""))
+    try:
+        if config.robot.scripted_operator:  # franky-sim: the scripted operator demonstrates its reach task
+            waypoints = []
+        elif args.waypoints:
+            waypoints = read_waypoints(Path(args.waypoints).read_text().splitlines())
+        else:
+            print("waypoints, one per line: x y z [qx qy qz qw] open|close [via]; an empty line ends", flush=True)
+            waypoints = _typed_waypoints()
+    except (OSError, ValueError) as exc:  # a missing file or a bad line: one line, before the arm moves
+        print(f"c2farm: {exc}", file=sys.stderr)
+        return 2
     if not waypoints and not config.robot.scripted_operator:
         print("c2farm: no waypoints", file=sys.stderr)
         return 2
     written = record_demos(config, waypoints, args.episodes or config.demos.episodes, demo_dir(config))
     print(f"{len(written)} robot demos in {demo_dir(config)}")
     return 0
+
+
+def _typed_waypoints() -> list:
+    """Waypoints typed in the terminal until an empty line; a mistyped line is said and typed again."""
+    from actors.robot.demos import parse_waypoint, read_waypoints
+
+    lines: list[str] = []
+    for line in iter(lambda: sys.stdin.readline().rstrip("\n"), ""):
+        try:
+            parse_waypoint(line)
+        except ValueError as exc:
+            print(f"{exc}; type it again", flush=True)
+            continue
+        lines.append(line)
+    return read_waypoints(lines)
 
 
 def _unique_run_id(cfg_mod, runs_dir: Path) -> str:

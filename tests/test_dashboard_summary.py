@@ -8,13 +8,14 @@ def _status(role: str, instance: str, **counters) -> Status:
     return Status(role=role, instance=instance, run_id="r", pid=1, host="h", time=0.0, counters=counters)
 
 
-def test_summary_adds_up_actors_and_shows_each_actors_policy_lag():
+def test_summary_adds_up_actors_and_robots_and_shows_each_ones_policy_lag():
     table = RoleTable("r")
     for role, instance, counters in (
         ("learner", "learner", {"updates": 120, "updates_per_s": 0.5, "weights_version": 12}),
         ("replay", "replay", {"size_transitions": 900, "samples_per_insert": 1.5}),
         ("actor", "actor-0", {"env_steps": 300, "episodes": 100, "weights_version": 12}),
         ("actor", "actor-1", {"env_steps": 200, "episodes": 70, "weights_version": 9}),
+        ("robot", "robot-0", {"env_steps": 40, "episodes": 10, "weights_version": 11}),
         ("eval", "eval", {"eval_success": 0.8, "eval_version": 10}),
     ):
         table.on_token(role, instance, True)
@@ -23,9 +24,9 @@ def test_summary_adds_up_actors_and_shows_each_actors_policy_lag():
     summary = table.snapshot()["summary"]
 
     assert summary["updates"] == 120 and summary["weights_version"] == 12
-    assert summary["env_steps"] == 500 and summary["episodes"] == 170
+    assert summary["env_steps"] == 540 and summary["episodes"] == 180
     assert summary["replay_size"] == 900
-    assert summary["policy_lag"] == {"actor-0": 0, "actor-1": 3}
+    assert summary["policy_lag"] == {"actor-0": 0, "actor-1": 3, "robot-0": 1}
     assert summary["eval_success"] == 0.8 and summary["eval_version"] == 10
 
 

@@ -44,3 +44,28 @@ def test_robot_flags_name_the_arm_and_the_cameras():
 def test_a_scripted_operator_needs_the_simulated_arm():
     with pytest.raises(ConfigError, match="scripted_operator"):
         resolve("robot", "--run-id", "r1", "--robot", "franka", "--set", "robot.scripted_operator=true")
+
+
+def test_a_bad_waypoints_file_is_one_line_before_the_arm_moves(tmp_path, capsys):
+    from deploy.cli import main
+
+    waypoints = tmp_path / "task.txt"
+    waypoints.write_text("0.5 0.1 0.3 open via\n0.5 0.1 sideways close\n")
+    # The host is one no arm answers on: the refusal has to come before any connection.
+    code = main(["robot-demos", "--robot", "franka", "--robot-host", "192.0.2.1", "--waypoints", str(waypoints),
+                 "--set", f"demos.directory={tmp_path / 'demos'}"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "0.5 0.1 sideways close" in err and "Traceback" not in err
+
+
+def test_a_mistyped_waypoint_is_typed_again(monkeypatch, capsys):
+    import io
+
+    from deploy.cli import _typed_waypoints
+
+    monkeypatch.setattr("sys.stdin", io.StringIO("0.5 0.1 0.3 open via\n0.5 0.1 close\n0.5 0.1 0.15 close\n\n"))
+    waypoints = _typed_waypoints()
+    assert [(list(w.pose[:3]), w.gripper_open, w.keyframe) for w in waypoints] == [
+        ([0.5, 0.1, 0.3], True, False), ([0.5, 0.1, 0.15], False, True)]
+    assert "type it again" in capsys.readouterr().out

@@ -25,7 +25,7 @@ import torch
 from actors.actor_loop import ActingPolicy, Rollout, episode_seed, rollout, to_episode
 from actors.config import ActorConfig
 from actors.evaluation import EvalResult, evaluate, write_snapshot
-from actors.evaluation import _append_csv as append_eval_row
+from actors.evaluation import append_eval_row
 from actors.outbox import Outbox
 from actors.robot.config import RobotConfig
 from actors.robot.env import OperatorStopped, ReachOperator, RobotEnv
