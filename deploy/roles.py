@@ -37,9 +37,12 @@ def network_config(config: RunConfig):
 
 
 def demo_dir(config: RunConfig) -> Path:
-    """Demos are shared between runs of the same task, cameras and image size."""
+    """Demos are shared between runs of the same task (and its revision), cameras and image size."""
+    from actors.sim.tasks import make_task
+
     sim = config.sim
-    name = f"{sim.task}-{'+'.join(sim.cameras)}-{sim.image_size}px"
+    revision = make_task(sim.task).revision
+    name = f"{sim.task}{f'-r{revision}' if revision > 1 else ''}-{'+'.join(sim.cameras)}-{sim.image_size}px"
     return Path(config.demos.directory) / name
 
 

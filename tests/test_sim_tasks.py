@@ -72,3 +72,28 @@ def test_observation_carries_the_proprioception():
     assert obs.gripper_open == 1.0
     assert obs.finger_positions.shape == (2,) and np.all((0 <= obs.finger_positions) & (obs.finger_positions <= 0.04))
     assert obs.joint_positions.shape == obs.joint_velocities.shape == (7,)
+
+
+@pytest.mark.parametrize("task", ["reach_target", "pick_and_lift"])
+def test_the_target_is_red_in_every_episode_as_in_rlbench_variation_0(task):
+    """C2F-ARM learns variation 0: the target's colour is what tells it from the distractors."""
+    from actors.sim import shapes
+    from actors.sim.tasks import make_task
+
+    t = make_task(task)
+    for seed in range(20):
+        t.sample(np.random.default_rng(seed))
+        colours = [shapes.COLOURS[c] if isinstance(c, str) else c for c in t.colours]
+        assert colours[0] == shapes.COLOURS["red"] and shapes.COLOURS["red"] not in colours[1:]
+        assert len(set(colours)) == 3
+
+
+def test_demos_cached_for_an_older_scene_of_a_task_are_not_reused():
+    from deploy.config import load_config
+    from deploy.roles import demo_dir
+
+    def directory(task):
+        return demo_dir(load_config(preset="cpu-small", overrides=({"sim": {"task": task}},))).name
+
+    assert directory("pick_and_lift") == "pick_and_lift-r2-front-128px"  # revision 2: the target is always red
+    assert directory("push_button") == "push_button-front-128px"

@@ -25,6 +25,16 @@ Vec3 = Sequence[float]
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
+def target_and_distractors(rng, distractors: int) -> list[str]:
+    """Colour names for RLBench's variation 0, the one C2F-ARM trains on: the target red, distractors other colours.
+
+    The colour tells the target apart; a task that drew it at random would ask the policy to
+    find the target by a cue it is never told (RLBench's other variations come with language).
+    """
+    others = [n for n in COLOURS if n != "red"]
+    return ["red"] + list(rng.choice(others, distractors, replace=False))
+
+
 def box(client: int, half: Vec3, pos: Vec3, orn: Sequence[float] = IDENTITY, rgba=(0.6, 0.6, 0.6, 1),
         mass: float = 0.0, collide: bool = True) -> int:
     """A box; mass 0 makes it static."""

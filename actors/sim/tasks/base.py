@@ -72,6 +72,8 @@ class Task:
     scene_bounds: tuple[float, ...] = DEFAULT_BOUNDS
     #: names of spawned bodies the motion planner must avoid
     obstacles: tuple[str, ...] = ()
+    #: raised when the scene a seed draws changes, so demos cached for the old scene are not reused
+    revision: int = 1
 
     def planner_ignores(self) -> list[tuple[str, int]]:
         """(obstacle name, link) parts the planner may touch, e.g. handles the fingers close on."""

@@ -1,4 +1,7 @@
-"""L2 pick_and_lift: grasp the target block (random yaw, two distractors) and lift it into the target zone."""
+"""L2 pick_and_lift: grasp the red target block (random yaw, two distractors) and lift it into the target zone.
+
+RLBench's variation 0, as C2F-ARM: the target is red, the distractors other colours.
+"""
 
 from __future__ import annotations
 
@@ -14,13 +17,13 @@ HALF = 0.0225  #: block half size
 class PickAndLift(Task):
     name = "pick_and_lift"
     episode_length = 6
+    revision = 2  #: 2: the target is always red (1 drew its colour at random)
 
     def sample(self, rng):
         pts = sample_positions(rng, 3, (0.35, -0.25, HALF), (0.6, 0.25, HALF), 0.12)
         self.blocks = pts
         self.yaws = rng.uniform(-np.pi / 4, np.pi / 4, 3)
-        names = list(rng.choice(list(shapes.COLOURS), 3, replace=False))
-        self.colours = [shapes.COLOURS[n] for n in names]
+        self.colours = [shapes.COLOURS[n] for n in shapes.target_and_distractors(rng, 2)]
         self.zone = np.array([rng.uniform(0.35, 0.55), rng.uniform(-0.2, 0.2), rng.uniform(0.2, 0.3)])
 
     def spawn(self, client):

@@ -14,8 +14,7 @@ class ReachTarget(Task):
 
     def sample(self, rng):
         self.spheres = sample_positions(rng, 3, (0.3, -0.3, 0.05), (0.65, 0.3, 0.4), 0.2)
-        names = [n for n in shapes.COLOURS if n != "red"]
-        self.colours = ["red"] + list(rng.choice(names, 2, replace=False))
+        self.colours = shapes.target_and_distractors(rng, 2)
 
     def spawn(self, client):
         return {f"sphere{i}": shapes.sphere(client, 0.025, pos, shapes.COLOURS[c], collide=False)
