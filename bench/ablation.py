@@ -1,0 +1,144 @@
+"""Sample-efficiency levers side by side: every variant on the same seeds and budget, in one table.
+
+    python bench/ablation.py --task push_button --minutes 10 --seeds 3                  # every lever
+    python bench/ablation.py --task push_button --minutes 10 --seeds 3 --variants default base no-margin
+    python bench/ablation.py --task push_button --seeds 3 --summary                     # read the runs, run nothing
+    python bench/ablation.py --list                                                     # the levers
+
+A variant is the preset (``default``) with one lever turned (``LEVERS``); ``base`` turns every
+sample-efficiency lever off, which is the reference's algorithm. Seeds run interleaved (seed 1 of
+every variant, then seed 2, ...), so a host that drifts slower or busier hits every variant
+alike. Each run is ``bench/learning.py --tag <variant>``'s: resumable (rerun the command), with
+its curves under ``bench/results/<task>-<preset>-<variant>[-s<seed>].{csv,png}``.
+
+The table (markdown, for BENCHMARKS.md; also written to ``bench/results/ablation-<task>-<preset>.md``)
+gives, per variant and seed, when greedy success first reached each threshold (minutes, env
+steps, learner step), then the variant's slowest seed: the headline, since a lever helps only if
+the worst seed gets there sooner.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+from typing import Mapping, Optional, Sequence
+
+import learning  # bench/learning.py: runs, curves, thresholds
+
+#: Variant name -> config overrides on top of the preset. Each turns one lever of issue 13.
+LEVERS: dict[str, tuple[str, ...]] = {
+    "default": (),
+    "base": ("replay.demo_fraction=0.0", "replay.n_step=1", "actor.reachable_top_k=0", "qattention.demo_margin=0.0"),
+    "no-demo-share": ("replay.demo_fraction=0.0",),
+    "one-step": ("replay.n_step=1",),
+    "no-top-k": ("actor.reachable_top_k=0",),
+    "no-margin": ("qattention.demo_margin=0.0",),
+    "unreachable-minus-1": ("sim.unreachable_reward=-1.0",),
+    "uniform-exploration": ("qattention.exploration=uniform",),
+    "epsilon-0.2": ("actor.epsilon=0.2",),
+    "acting-average": ("learner.acting_average=0.99",),
+    # The replay's rate limiter holds samples per insert within 100 transitions of the target.
+    "spi-1": ("replay.samples_per_insert=1.0", "replay.samples_per_insert_error_buffer=100"),
+    "spi-2": ("replay.samples_per_insert=2.0", "replay.samples_per_insert_error_buffer=100"),
+    "spi-4": ("replay.samples_per_insert=4.0", "replay.samples_per_insert_error_buffer=100"),
+    "bf16": ("qattention.bf16=true",),
+}
+
+
+def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str]:
+    """bench/learning.py's arguments for one seed of one variant (the tag names the variant)."""
+    argv = ["--task", args.task, "--minutes", f"{args.minutes:g}", "--preset", args.preset, "--seeds", "1",
+            "--first-seed", str(seed), "--tag", variant, "--runs-dir", args.runs_dir,
+            "--results-dir", args.results_dir]
+    for item in (*LEVERS[variant], *args.set):
+        argv += ["--set", item]
+    return argv
+
+
+def seed_curves(args: argparse.Namespace, variant: str) -> dict[int, learning.Curve]:
+    """The variant's seeds that have evaluations (each run's eval.csv)."""
+    parsed = learning.parse_args(learning_args(args, variant, args.first_seed))
+    parsed.seeds = args.seeds
+    return {seed: curve for seed, curve in learning.load_seeds(parsed).items()}
+
+
+def slowest(curves: Sequence[learning.Curve], threshold: float) -> Optional[dict]:
+    """The latest first-reaching point over the seeds; None if any seed never got there."""
+    points = [learning.first_reaching(curve, threshold) for curve in curves]
+    if not points or any(p is None for p in points):
+        return None
+    return max(points, key=lambda p: (p["minutes"], p["env_steps"]))
+
+
+def table(results: Mapping[str, Mapping[int, learning.Curve]], thresholds: Sequence[float]) -> str:
+    """Markdown: per variant, each seed's time to each threshold, then the slowest seed's."""
+    header = ["variant", "seed"] + [f"first ≥ {100 * t:g} %" for t in thresholds] + ["final success", "evals"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for variant, curves in results.items():
+        for seed, curve in sorted(curves.items()):
+            cells = [variant, str(seed)] + [learning._reached(learning.first_reaching(curve, t)) for t in thresholds]
+            lines.append("| " + " | ".join(cells + [f"{100 * curve[-1]['success_rate']:.0f} %", str(len(curve))]) + " |")
+        if len(curves) > 1:
+            cells = [f"**{variant}**", "slowest"] + [learning._reached(slowest(list(curves.values()), t))
+                                                      for t in thresholds]
+            worst_final = min(c[-1]["success_rate"] for c in curves.values())
+            lines.append("| " + " | ".join(cells + [f"{100 * worst_final:.0f} %", ""]) + " |")
+    return "\n".join(lines)
+
+
+def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="push_button", help="task to learn")
+    parser.add_argument("--minutes", type=float, default=10.0, help="wall-clock budget per run")
+    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per variant")
+    parser.add_argument("--first-seed", type=int, default=1, help="seed of the first run of each variant")
+    parser.add_argument("--variants", nargs="+", default=list(LEVERS), metavar="NAME", help="levers to compare (--list)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every run")
+    parser.add_argument("--thresholds", type=float, nargs="+", default=[0.5, 0.9], help="success rates to time")
+    parser.add_argument("--runs-dir", default="runs", help="where runs live")
+    parser.add_argument("--results-dir", default="bench/results", help="where curves and the table go")
+    parser.add_argument("--summary", action="store_true", help="only read the runs and print the table")
+    parser.add_argument("--list", action="store_true", help="print the levers and what each overrides")
+    args = parser.parse_args(argv)
+    unknown = [v for v in args.variants if v not in LEVERS]
+    if unknown:
+        parser.error(f"unknown variant(s) {', '.join(unknown)}; known: {', '.join(LEVERS)}")
+    if args.seeds < 1 or args.minutes <= 0:
+        parser.error("--seeds must be >= 1 and --minutes > 0")
+    return args
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = parse_args(argv)
+    if args.list:
+        for name, overrides in LEVERS.items():
+            print(f"{name:>20}  {' '.join(overrides) or '(the preset as it is)'}")
+        return 0
+    failed = []
+    if not args.summary:
+        bench = Path(__file__).with_name("learning.py")
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            for variant in args.variants:
+                code = subprocess.run([sys.executable, str(bench), *learning_args(args, variant, seed)]).returncode
+                if code == 130:  # interrupted: the rerun resumes from here
+                    print("interrupted; rerun the same command to resume", flush=True)
+                    return 130
+                if code:
+                    failed.append(f"{variant} seed {seed}")
+    results = {variant: seed_curves(args, variant) for variant in args.variants}
+    text = table({v: c for v, c in results.items() if c}, args.thresholds)
+    out = Path(args.results_dir) / f"ablation-{args.task}-{args.preset}.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(f"{args.task}, preset {args.preset}, {args.minutes:g} min per run\n\n{text}\n")
+    print(text)
+    print(f"wrote {out}")
+    if failed:
+        print(f"runs that failed: {', '.join(failed)}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,59 @@
+"""bench/ablation.py: every lever is a valid config, and the table times each seed and the slowest."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO / "bench"))  # ablation.py imports its sibling learning.py
+_spec = importlib.util.spec_from_file_location("bench_ablation", REPO / "bench" / "ablation.py")
+ablation = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ablation)
+
+
+def curve(*points: tuple[float, int, float]) -> list[dict]:
+    """(minutes, env steps, success) per evaluation, 50 updates apart."""
+    return [{"minutes": m, "env_steps": s, "learner_step": 50 * k, "success_rate": r}
+            for k, (m, s, r) in enumerate(points)]
+
+
+@pytest.mark.parametrize("variant", list(ablation.LEVERS))
+def test_every_lever_is_a_config_the_run_accepts(variant):
+    from deploy.config import load_config
+    from deploy.config_loader import parse_override
+
+    config = load_config(preset="cpu-small", overrides=tuple(parse_override(o) for o in ablation.LEVERS[variant]))
+    if variant == "base":  # the reference's algorithm: no demo share, one-step, no top-K, no margin
+        assert (config.replay.demo_fraction, config.replay.n_step, config.actor.reachable_top_k,
+                config.qattention.demo_margin) == (0.0, 1, 0, 0.0)
+
+
+def test_the_table_times_each_seed_and_heads_with_the_slowest():
+    results = {
+        "default": {1: curve((1.0, 100, 0.0), (5.0, 500, 0.95)), 2: curve((1.0, 100, 0.6), (6.0, 700, 0.9))},
+        "base": {1: curve((1.0, 100, 0.0), (5.0, 500, 0.95)), 2: curve((1.0, 100, 0.0), (6.0, 700, 0.4))},
+    }
+    rows = ablation.table(results, [0.5, 0.9]).splitlines()
+    assert rows[0] == "| variant | seed | first ≥ 50 % | first ≥ 90 % | final success | evals |"
+    slowest_default = next(r for r in rows if r.startswith("| **default** | slowest"))
+    assert "6.0 min, 700 env steps" in slowest_default.split("|")[4] and "5.0 min" in slowest_default.split("|")[3]
+    slowest_base = next(r for r in rows if r.startswith("| **base** | slowest"))
+    assert slowest_base.split("|")[4].strip() == "not reached"  # seed 2 never got to 90 %
+    assert slowest_base.split("|")[5].strip() == "40 %"
+
+
+def test_seeds_interleave_and_each_run_is_a_tagged_learning_run():
+    args = ablation.parse_args(["--task", "push_button", "--variants", "default", "no-margin", "--seeds", "2"])
+    argv = ablation.learning_args(args, "no-margin", 2)
+    assert argv[argv.index("--tag") + 1] == "no-margin" and argv[argv.index("--first-seed") + 1] == "2"
+    assert "qattention.demo_margin=0.0" in argv
+
+
+def test_an_unknown_lever_is_one_line_before_anything_runs(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        ablation.parse_args(["--variants", "default", "more-magic"])
+    assert exit_.value.code == 2 and "unknown variant(s) more-magic" in capsys.readouterr().err
