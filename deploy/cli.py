@@ -215,6 +215,9 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
     if getattr(args, "camera", None):
         from protocol.observation import CAMERA_NAMES
 
+        if len(args.camera) > len(CAMERA_NAMES):
+            raise ConfigError(f"--camera: given {len(args.camera)} times, but an observation has at most "
+                              f"{len(CAMERA_NAMES)} cameras ({', '.join(CAMERA_NAMES)}, in --camera order)")
         cams = []
         for name, text in zip(CAMERA_NAMES, args.camera):
             kind, _, serial = text.partition(":")

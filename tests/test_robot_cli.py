@@ -69,3 +69,8 @@ def test_a_mistyped_waypoint_is_typed_again(monkeypatch, capsys):
     assert [(list(w.pose[:3]), w.gripper_open, w.keyframe) for w in waypoints] == [
         ([0.5, 0.1, 0.3], True, False), ([0.5, 0.1, 0.15], False, True)]
     assert "type it again" in capsys.readouterr().out
+
+
+def test_more_cameras_than_an_observation_holds_is_an_error_not_a_silent_drop():
+    with pytest.raises(ConfigError, match="at most 4 cameras"):
+        resolve("robot", "--run-id", "r1", "--robot", "franka", *[w for s in "12345" for w in ("--camera", f"realsense:{s}")])
