@@ -86,7 +86,7 @@ def results_stem(args: argparse.Namespace) -> str:
 def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock budget of the run, over all reruns")
-    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
+    parser.add_argument("--preset", default="robot", help="config preset in configs/ (robot: 3 demos, training from 16 transitions)")
     parser.add_argument("--seed", type=int, default=1, help="run.seed")
     parser.add_argument("--demos", type=int, default=3, help="scripted demos recorded before the run (the paper: 3); 0 = none")
     parser.add_argument("--tag", default=None, help="names a variant in the run id and result files")

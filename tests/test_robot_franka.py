@@ -103,3 +103,17 @@ def test_lost_connection_is_recovered_and_the_next_move_works(arm, sim):
     assert arm.counters["reconnects"] == 1
     result = arm.move_to(pose(0.45, 0.1, 0.3), gripper_open=True)
     assert result.reached, result
+
+
+def test_a_twisted_arm_unwinds_in_joint_space_and_goes_home_again(arm):
+    """Where a wild pose left the wrist (here turned near its limit), the robot env's reset unwinds, then moves home."""
+    import franky
+
+    twisted = np.array(arm.config.home_joints)
+    twisted[6] = 2.6  # the wrist turned ~105 degrees past its home
+    arm._robot.move(franky.JointMotion(twisted))
+    assert np.abs(arm.joint_positions() - twisted).max() < 0.05
+
+    assert arm.unwind() and arm.counters["unwinds"] == 1
+    assert np.abs(arm.joint_positions() - np.array(arm.config.home_joints)).max() < 0.05
+    assert arm.move_to(pose(0.45, 0.0, 0.4), gripper_open=True).reached

@@ -14,6 +14,8 @@ class SafetyConfig:
     table_height: float = 0.0  #: z of the table top, metres, robot base frame
     table_clearance: float = 0.01  #: the grasp frame stays at least this far above the table top, metres
     max_step: float = 0.5  #: longest straight-line move of the grasp frame in one decision, metres
+    max_tilt_deg: float = 60.0  #: largest angle between the gripper's approach axis and straight down, degrees (90 allows a horizontal approach)
+    max_yaw_deg: float = 120.0  #: largest turn of the gripper about the vertical from the top-down frame with fingers along y, degrees (the wrist's range)
 
     def __post_init__(self) -> None:
         self.workspace_min, self.workspace_max = tuple(self.workspace_min), tuple(self.workspace_max)
@@ -23,6 +25,8 @@ class SafetyConfig:
             raise ValueError("workspace_min must be below workspace_max on every axis")
         if self.max_step <= 0 or self.table_clearance < 0:
             raise ValueError("max_step must be > 0 and table_clearance >= 0")
+        if not (0 < self.max_tilt_deg <= 180 and 0 < self.max_yaw_deg <= 180):
+            raise ValueError("max_tilt_deg and max_yaw_deg must be in (0, 180]")
 
 
 @dataclass
@@ -39,12 +43,16 @@ class FrankaConfig:
     gripper_speed: float = 0.05  #: finger speed, m/s
     gripper_force: float = 20.0  #: grasping force, N
     still_speed: float = 0.01  #: the arm counts as standing still once every joint moves slower than this, rad/s (stop timing)
+    home_joints: tuple[float, ...] = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)  #: joint positions (rad) the arm unwinds to, in joint space, when a Cartesian move home fails (Franka's "ready" posture)
 
     def __post_init__(self) -> None:
         if not 0 < self.dynamics_factor <= 1:
             raise ValueError("dynamics_factor must be in (0, 1]")
         if self.reach_tolerance <= 0 or self.move_timeout_s <= 0 or self.still_speed <= 0:
             raise ValueError("reach_tolerance, move_timeout_s and still_speed must be > 0")
+        self.home_joints = tuple(float(q) for q in self.home_joints)
+        if len(self.home_joints) != 7:
+            raise ValueError("home_joints needs the 7 joint positions of the arm, radians")
 
 
 @dataclass

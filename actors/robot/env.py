@@ -62,8 +62,9 @@ class RobotEnv:
         self.seed = 0 if seed is None else int(seed)
         self._wait_resumed()
         home = self.arm.move_to(np.asarray(self.config.home), gripper_open=True)
-        if not home.reached:
+        if not home.reached:  # an arm error, or a posture Cartesian moves cannot leave: clear it, unwind, again
             self.arm.recover()
+            self.arm.unwind()
             home = self.arm.move_to(np.asarray(self.config.home), gripper_open=True)
             if not home.reached:
                 raise OperatorStopped(f"cannot reach the home pose: {home.reason} {home.detail}")

@@ -45,7 +45,7 @@ class FrankaArm:
         self._moving = threading.Lock()  # held while a move runs (stop() may come from another thread)
         self._gripper_open = True
         self.counters: dict[str, float] = {"moves": 0, "reached": 0, "failed": 0, "stops": 0, "recoveries": 0,
-                                           "reconnects": 0}
+                                           "reconnects": 0, "unwinds": 0}
         self.last_stop_s = float("nan")
 
     # -- connection --------------------------------------------------------------------
@@ -195,6 +195,25 @@ class FrankaArm:
     @property
     def stopped(self) -> bool:
         return self._stopped.is_set()
+
+    def unwind(self) -> bool:
+        """``franka.home_joints`` by a joint motion: out of a twisted wrist or a posture where Cartesian moves fail."""
+        import franky
+
+        if self._stopped.is_set():
+            return False
+        self.counters["unwinds"] += 1
+        with self._moving:
+            try:
+                self._robot.move(franky.JointMotion(np.asarray(self.config.home_joints)), asynchronous=True)
+                if not self._robot.join_motion(self.config.move_timeout_s):
+                    self._robot.stop()
+                    return False
+                self.wait_still(time.perf_counter(), timeout_s=self.config.settle_timeout_s)
+            except (franky.NetworkException, franky.ControlException, franky.CommandException, RuntimeError) as exc:
+                log.warning("unwind failed: %s", exc)
+                return False
+        return True
 
     def recover(self) -> bool:
         """Automatic error recovery; a lost connection is reopened. True when the arm accepts motions again."""

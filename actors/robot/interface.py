@@ -56,6 +56,9 @@ class RobotArm(Protocol):
     def recover(self) -> bool:
         """Clear an arm error (reconnecting when the connection was lost); True when the arm can move again."""
 
+    def unwind(self) -> bool:
+        """Move to the arm's known posture in joint space (no Cartesian path to get stuck on); True when there."""
+
     def stop(self) -> float:
         """Halt any motion now and refuse moves until ``resume()``; returns seconds until the arm stood still."""
 
