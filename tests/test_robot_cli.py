@@ -74,3 +74,8 @@ def test_a_mistyped_waypoint_is_typed_again(monkeypatch, capsys):
 def test_more_cameras_than_an_observation_holds_is_an_error_not_a_silent_drop():
     with pytest.raises(ConfigError, match="at most 4 cameras"):
         resolve("robot", "--run-id", "r1", "--robot", "franka", *[w for s in "12345" for w in ("--camera", f"realsense:{s}")])
+
+
+def test_the_robot_preset_falls_back_to_poses_the_safety_limits_allow():
+    config = resolve("launch", "--robot", "franka", "--robot-host", "172.16.0.2", preset="robot")
+    assert config.actor.reachable_top_k == 8
