@@ -95,7 +95,8 @@ class RobotEnv:
         if self.scripted is not None:
             self.scripted.after_move(obs)
         verdict = self.channel.take(VERDICTS)
-        if verdict is None and self.steps >= self.episode_length:
+        if verdict is None and self.steps >= self.episode_length and self.scripted is None:
+            # a person may still be judging; a scripted operator has judged after the move already
             verdict = self.channel.wait_for(VERDICTS, self.stop, self.config.verdict_wait_s)
         success = verdict is OperatorAction.SUCCESS
         info["timeout"] = verdict is None and self.steps >= self.episode_length
