@@ -12,8 +12,8 @@ run directory, before the budget starts, as a person would before training; then
 learner, demo source and robot (no simulated actors or evaluator). A scripted operator
 (``robot.scripted_operator``) moves the target before each episode and says "success" when the
 grasp frame is within 2 cm of it, and demonstrates it: one top-down move onto the target.
-With ``robot.evaluate`` the robot actor also plays the evaluator's greedy episodes (fixed seeds, so fixed targets) every ``actor.eval_every_versions``
-weights versions, into ``runs/<id>/metrics/eval.csv``, the file bench/learning.py reads.
+With ``robot.evaluate`` the robot actor also plays the evaluator's greedy episodes (fixed
+seeds, so fixed targets) every ``actor.eval_every_versions`` weights versions, into ``runs/<id>/metrics/eval.csv``, the file bench/learning.py reads.
 
 Ports are picked free (router, replay's ZeroMQ, dashboard), so this runs beside another run.
 Budget bookkeeping, reading and plotting are bench/learning.py's (``runs/<id>/bench_budget.json``).
