@@ -24,6 +24,7 @@ from .loss import bootstrap_value, depth_loss, next_bounds, priorities, td_targe
 from .q_attention import build_networks
 from .reachability import ReachabilityTest
 from .voxelise import child_bounds, voxelise
+from .yaw_augmentation import augment_yaw
 
 
 class C2FARM:
@@ -105,6 +106,7 @@ class C2FARM:
         """
         cfg = self.config
         self.nets.train()
+        batch = augment_yaw(batch, cfg.demo_yaw_augmentation, self.generator)
         idx, coords, bounds, rot_grip = self.labels(batch)
         cams, crop, v = cfg.cameras, cfg.image_crop, cfg.voxel_size
 

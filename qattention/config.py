@@ -39,6 +39,7 @@ class QAttentionConfig:
     lambda_demo_margin: float = 1.0  #: weight of the demo margin loss beside the TD loss
     crop_augmentation: bool = True  #: shift the depth>=1 cube centre of demo transitions at label time
     crop_shift: float = 0.75  #: max shift per axis as a fraction of bounds_offset
+    demo_yaw_augmentation: float = 0.0  #: max |yaw| (deg) by which each sampled demo row's scene, gripper and action turn about the vertical through the action (yaw_augmentation.py); 0 = off, as the reference
     reward_scale: float = 0.01  #: reward multiplier before the TD target (100 -> 1)
     epsilon: float = 0.0  #: exploration probability per depth / rotation axis / gripper (0.0 = greedy, as reference)
     exploration: Literal["gaussian", "uniform"] = "gaussian"  #: 'gaussian' = local jitter, 'uniform' = any voxel / bin
@@ -56,6 +57,8 @@ class QAttentionConfig:
             raise ValueError(f"bf16 must be true, false or 'auto', not {self.bf16!r}")
         if self.padding not in ("zeros", "replicate"):
             raise ValueError(f"padding must be 'zeros' or 'replicate', not {self.padding!r}")
+        if not 0 <= self.demo_yaw_augmentation <= 180:
+            raise ValueError("demo_yaw_augmentation must be between 0 and 180 degrees")
         if self.demo_margin < 0 or self.lambda_demo_margin < 0:
             raise ValueError("demo_margin and lambda_demo_margin must be >= 0")
         if isinstance(self.bounds_offset, (list, tuple)) and len(self.bounds_offset) < self.depths - 1:

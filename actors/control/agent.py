@@ -174,6 +174,7 @@ class ControlAgent:
             return None, "out_of_workspace"
         q0, _ = self.scene.joint_state()
         self.world.sync(self.scene.client, self._mirror)
+        self.world.set_fingers(self.scene.finger_positions())
         self.world.allowed = set(self.world.contacts(q0))
         return (pos, quat, q0), None
 

@@ -11,7 +11,7 @@ import itertools
 import numpy as np
 from actors.sim.bullet import p
 
-from actors.sim.scene import GRASP_LINK, HOME, add_table, load_panda, set_arm
+from actors.sim.scene import FINGER_JOINTS, GRASP_LINK, HOME, add_table, load_panda, set_arm
 
 HAND_LINKS = {7, 8, 9, 10, 11}
 
@@ -55,6 +55,13 @@ class CollisionWorld:
             for j in range(p.getNumJoints(sim_body, physicsClientId=sim_client)):
                 q = p.getJointState(sim_body, j, physicsClientId=sim_client)[0]
                 p.resetJointState(body, j, q, physicsClientId=self.client)
+
+    def set_fingers(self, positions) -> None:
+        """Open the fingers as wide as the real ones: the arm moves first and the gripper after
+        (MoveArmThenGripper), so an open hand sweeps the scene open; left at the URDF's closed
+        default, the planner would pass open fingers straight through the object they approach."""
+        for j, v in zip(FINGER_JOINTS, positions):
+            p.resetJointState(self.robot, j, float(v), 0.0, physicsClientId=self.client)
 
     def contacts(self, q) -> list[tuple[int, int, int]]:
         """Penetrating contacts (robot link, other body, other link) at ``q``; self pairs use body = robot."""

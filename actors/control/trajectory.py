@@ -1,9 +1,13 @@
 """Time parameterisation with Ruckig under the Panda's velocity/acceleration/jerk limits.
 
-Two points: one time-optimal, synchronised 7-DoF Ruckig segment. More (an OMPL path): the community
-Ruckig cannot pass through waypoints (intermediate_positions is a Pro feature that tries a cloud API),
-so we run 1-DoF Ruckig along the path's arc length with limits scaled so no joint exceeds its own.
-The arm then does not stop at every OMPL vertex, which would read as spurious "stopped" keyframes.
+The arm must move along the very path the planner checked for collisions, so we run 1-DoF Ruckig
+along the path's arc length, with limits scaled so no joint exceeds its own, and map it back onto
+the path. This holds for a single straight segment too: a time-synchronised 7-DoF Ruckig segment
+reaches the goal with every joint at once, but on its own velocity profile, so the joint-space
+path bows away from the checked line (pick_and_lift: open fingers, planned to clear the block by
+1 cm, swept into it). Several vertices (an OMPL path): the community Ruckig cannot pass through
+waypoints (intermediate_positions is a Pro feature that tries a cloud API); along the arc length the
+arm does not stop at every vertex either, which would read as spurious "stopped" keyframes.
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ class JointTrajectory:
     """q(t), qd(t) for t in [0, duration]."""
 
     ruckig: Trajectory
-    path: np.ndarray | None  #: arc-length mode: the vertices; None for a direct 7-DoF segment
-    cumulative: np.ndarray | None  #: arc length at each vertex
+    path: np.ndarray  #: the vertices [N, 7]
+    cumulative: np.ndarray  #: arc length at each vertex
 
     @property
     def duration(self) -> float:
@@ -30,8 +34,6 @@ class JointTrajectory:
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         pos, vel, _ = self.ruckig.at_time(min(max(t, 0.0), self.duration))
-        if self.path is None:
-            return np.array(pos), np.array(vel)
         s, sd = pos[0], vel[0]
         k = int(np.clip(np.searchsorted(self.cumulative, s, side="right") - 1, 0, len(self.path) - 2))
         seg = self.path[k + 1] - self.path[k]
@@ -58,12 +60,10 @@ def jerk_floor(j):
 
 
 def parameterise(path: np.ndarray, velocity_scale: float = 0.5, acceleration_scale: float = 0.5) -> JointTrajectory:
-    """Time-optimal trajectory along ``path`` [N, 7], at rest at both ends."""
+    """Time-optimal trajectory along ``path`` [N >= 2, 7] (exactly on it), at rest at both ends."""
     vmax = MAX_VELOCITY * velocity_scale
     amax, jmax = MAX_ACCELERATION * acceleration_scale, MAX_JERK * acceleration_scale
     path = np.asarray(path, dtype=float)
-    if len(path) == 2:
-        return JointTrajectory(_calculate(7, path[0], path[1], vmax, amax, jmax), None, None)
     lengths = np.linalg.norm(np.diff(path, axis=0), axis=1)
     cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
     # the steepest joint per unit arc length bounds the path speed

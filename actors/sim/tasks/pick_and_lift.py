@@ -18,6 +18,7 @@ class PickAndLift(Task):
     name = "pick_and_lift"
     episode_length = 6
     revision = 2  #: 2: the target is always red (1 drew its colour at random)
+    obstacles = ("block0", "block1", "block2")
 
     def sample(self, rng):
         pts = sample_positions(rng, 3, (0.35, -0.25, HALF), (0.6, 0.25, HALF), 0.12)
