@@ -43,7 +43,9 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "spi-1": ("replay.samples_per_insert=1.0", "replay.samples_per_insert_error_buffer=100"),
     "spi-2": ("replay.samples_per_insert=2.0", "replay.samples_per_insert_error_buffer=100"),
     "spi-4": ("replay.samples_per_insert=4.0", "replay.samples_per_insert_error_buffer=100"),
-    "bf16": ("qattention.bf16=true",),
+    "bf16": ("qattention.bf16=true",),  # where auto resolves to fp32 (no native bf16)
+    "fp32": ("qattention.bf16=false",),  # where auto resolves to bf16 (AVX-512-bf16, AMX, GPU)
+    "yaw-augmentation": ("qattention.demo_yaw_augmentation=45",),
 }
 
 

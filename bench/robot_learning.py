@@ -18,14 +18,17 @@ seeds, so fixed targets) every ``actor.eval_every_versions`` weights versions, i
 Ports are picked free (router, replay's ZeroMQ, dashboard), so this runs beside another run.
 Budget bookkeeping, reading and plotting are bench/learning.py's (``runs/<id>/bench_budget.json``).
 
-Outputs: ``runs/<id>/learning_curve.{csv,png}`` and ``<results-dir>/robot-reach-<preset>[-<tag>].{csv,png}``,
+Outputs: ``runs/<id>/learning_curve.{csv,png}`` and ``<results-dir>/robot-reach-<preset>[-<tag>]-s<seed>.csv``,
 one row per greedy evaluation: minutes, env steps, learner step, weights version, success rate,
-episodes, unreachable rate (poses the safety limits refused or the arm could not take).
+episodes, unreachable rate (poses the safety limits refused or the arm could not take); then every
+seed's CSV there combined as bench/learning.py does (``success_rate`` = the worst seed's) into
+``robot-reach-<preset>[-<tag>].{csv,png}``. Run seeds one after another (``--seed 2``, ``--seed 3``).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import signal
 import subprocess
 import sys
@@ -120,17 +123,36 @@ def train(args: argparse.Namespace) -> bool:
     return not code
 
 
+def read_curve_csv(path: Path) -> learning.Curve:
+    """A per-seed curve written by ``write_results`` (numbers back as floats, counters as ints)."""
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    counters = {"env_steps", "learner_step", "weights_version", "episodes"}
+    return [{k: (int(float(v)) if k in counters else float(v)) for k, v in row.items() if v not in ("", None)}
+            for row in rows]
+
+
 def write_results(args: argparse.Namespace) -> learning.Curve:
-    """The run's greedy evaluations as a CSV and a PNG under the results dir (and in the run dir)."""
+    """This seed's curve, then every seed's under the results dir combined (worst seed), as CSVs and a PNG.
+
+    Seeds are combined from their per-seed CSVs (``<stem>-s<seed>.csv``), not from run
+    directories, so seeds run in different sessions or on different machines still combine.
+    """
     run_dir = Path(args.runs_dir) / args.run_id
     learning.plot(run_dir)
     curve = learning.read_eval(run_dir)
+    results, stem = Path(args.results_dir), results_stem(args)
     if curve:
-        stem = Path(args.results_dir) / results_stem(args)
-        learning.write_csv(stem.with_suffix(".csv"), curve, learning.curve_fields(curve))
-        learning.plot_seeds({args.run_id: curve}, curve, stem.with_suffix(".png"), f"{stem.name}: greedy success")
-        print(f"wrote {stem}.csv and {stem}.png")
-        print(learning.summarise({args.run_id: curve}, curve, args.thresholds))
+        learning.write_csv(results / f"{stem}-s{args.seed}.csv", curve, learning.curve_fields(curve))
+    seeds = {int(p.stem.rsplit("-s", 1)[1]): read_curve_csv(p) for p in sorted(results.glob(f"{stem}-s*.csv"))
+             if p.stem.rsplit("-s", 1)[1].isdigit()}
+    if seeds:
+        combined = learning.aggregate(list(seeds.values()))
+        learning.write_csv(results / f"{stem}.csv", combined, learning.AGGREGATE_FIELDS)
+        named = {f"seed {seed}": c for seed, c in sorted(seeds.items())}
+        learning.plot_seeds(named, combined, results / f"{stem}.png", f"{stem}: greedy success, {len(seeds)} seed(s)")
+        print(f"wrote {results / stem}.csv and {stem}.png from {len(seeds)} per-seed CSV(s)")
+        print(learning.summarise(named, combined, args.thresholds))
     return curve
 
 

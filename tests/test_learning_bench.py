@@ -163,3 +163,26 @@ def test_per_run_plot_still_writes_the_learning_curve(tmp_path: Path) -> None:
     with (run_dir / "learning_curve.csv").open() as f:
         assert next(csv.reader(f)) == learning.CURVE_FIELDS
     assert learning.plot(tmp_path / "empty") is None
+
+
+def test_robot_seeds_combine_from_their_csvs_even_when_run_in_other_sessions(tmp_path: Path, capsys) -> None:
+    """bench/robot_learning.py: seed 1 ran last week (only its CSV is left), seed 2 runs now."""
+    sys.path.insert(0, str(REPO / "bench"))  # robot_learning.py imports its sibling learning.py
+    spec = importlib.util.spec_from_file_location("bench_robot_learning", REPO / "bench" / "robot_learning.py")
+    robot_learning = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(robot_learning)
+    runs, results = tmp_path / "runs", tmp_path / "results"
+    make_run(runs, "learn-robot-reach-robot-s2", [0.0, 0.6, 0.9])
+    results.mkdir()
+    old = [{"minutes": 1.5, "env_steps": 0, "learner_step": 0, "weights_version": 1, "success_rate": 0.0, "episodes": 10},
+           {"minutes": 6.0, "env_steps": 74, "learner_step": 50, "weights_version": 6, "success_rate": 0.5, "episodes": 20}]
+    robot_learning.learning.write_csv(results / "robot-reach-robot-s1.csv", old, robot_learning.learning.CURVE_FIELDS)
+    assert robot_learning.read_curve_csv(results / "robot-reach-robot-s1.csv") == old
+    args = robot_learning.parse_args(["--seed", "2", "--plot-only", "--runs-dir", str(runs), "--results-dir", str(results)])
+    assert robot_learning.write_results(args)
+    with (results / "robot-reach-robot.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [float(r["success_rate"]) for r in rows] == [0.0, 0.5]  # the worst seed, over the evaluations both have
+    assert [int(r["seeds"]) for r in rows] == [2, 2]
+    assert (results / "robot-reach-robot-s2.csv").exists() and (results / "robot-reach-robot.png").stat().st_size > 0
+    assert "| worst seed (per eval) |" in capsys.readouterr().out

@@ -18,6 +18,8 @@ class PickAndLift(Task):
     name = "pick_and_lift"
     episode_length = 6
     revision = 2  #: 2: the target is always red (1 drew its colour at random)
+    #: the planner keeps the open hand off every block (contacts already there when a move starts, as
+    #: with the block held, are exempt for that move)
     obstacles = ("block0", "block1", "block2")
 
     def sample(self, rng):
