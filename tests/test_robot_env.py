@@ -122,3 +122,17 @@ def test_scene_bounds_are_six_numbers_with_min_below_max():
             RobotConfig(scene_bounds=bad)
     with pytest.raises(ValueError, match="table top"):
         RobotConfig(safety=SafetyConfig(table_height=0.7))  # above the workspace: an empty box
+
+
+def test_greedy_evaluations_take_at_most_their_share_of_the_arms_time():
+    """One arm both trains and evaluates: a 60 s evaluation at share 0.5 earns 60 s of training first."""
+    from actors.config import ActorConfig
+    from actors.robot.actor import evaluation_due, training_resumes_until
+
+    assert training_resumes_until(100.0, 160.0, 0.5) == pytest.approx(220.0)
+    assert training_resumes_until(100.0, 160.0, 0.25) == pytest.approx(340.0)
+    assert training_resumes_until(100.0, 160.0, 1.0) == pytest.approx(160.0)  # evaluate whenever due
+    config = ActorConfig(eval_every_versions=5)
+    assert evaluation_due(1, 0, config) and evaluation_due(6, 1, config) and not evaluation_due(5, 1, config)
+    with pytest.raises(ValueError, match="eval_share"):
+        RobotConfig(eval_share=0.0)

@@ -117,15 +117,18 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
                               info=lambda: {"task": task, "arm": robot.arm, "host": host})
         stack.callback(heartbeat.close)
         policy.wait_for_first(config.weights_wait_s, ctx.stop)
-        evaluated = 0
+        evaluated, next_evaluation = 0, 0.0
         first_id, n = int(time.time() * 1000), 0
         while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
             policy.refresh()
             adopted = policy.adopted
-            if robot.evaluate and adopted is not None and evaluation_due(adopted.version, evaluated, config):
+            if (robot.evaluate and adopted is not None and time.monotonic() >= next_evaluation
+                    and evaluation_due(adopted.version, evaluated, config)):
+                started = time.monotonic()
                 try:
                     if evaluate_here(env, policy, config, qconfig, adopted, ctx):
                         evaluated = adopted.version
+                        next_evaluation = training_resumes_until(started, time.monotonic(), robot.eval_share)
                 except OperatorStopped as why:
                     log.info("evaluation dropped: %s", why)
                     channel.wait_resumed(ctx.stop)
@@ -164,6 +167,15 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
 def evaluation_due(version: int, evaluated: int, config: ActorConfig) -> bool:
     """As the evaluator: the first weights, then a version at least ``eval_every_versions`` newer."""
     return not evaluated or version >= evaluated + config.eval_every_versions or version < evaluated
+
+
+def training_resumes_until(started: float, ended: float, share: float) -> float:
+    """When the next evaluation may start: evaluations take at most ``share`` of the arm's time.
+
+    The simulated evaluator runs beside the actors; here one arm does both, and a learner that
+    publishes faster than an evaluation lasts would otherwise keep it evaluating.
+    """
+    return ended + (ended - started) * (1.0 - share) / share
 
 
 def evaluate_here(env: RobotEnv, policy: ActingPolicy, config: ActorConfig, qconfig: QAttentionConfig,

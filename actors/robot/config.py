@@ -83,6 +83,7 @@ class RobotConfig:
     scripted_operator: bool = False  #: franky-sim only: a scripted success check (grasp frame within 2 cm of the target) stands in for the person
     scene_bounds: tuple[float, ...] = ()  #: depth-0 voxel box the policy picks poses in (xmin ymin zmin xmax ymax zmax), metres, robot base frame, sent with every observation; empty = the safety workspace box, z from the table top
     evaluate: bool = False  #: also play the evaluator's greedy episodes here (actor.eval_episodes on seeds actor.eval_seed..., every actor.eval_every_versions weights versions) into runs/<id>/metrics/eval.csv; for a run with no simulated evaluator
+    eval_share: float = 0.5  #: with evaluate: at most this share of the arm's time goes to greedy evaluations (after one that took T s, training episodes get T * (1 - share) / share s before the next); the one arm does both, so a fast learner must not keep it evaluating
     franka: FrankaConfig = field(default_factory=FrankaConfig)  #: the Franka through franky
     safety: SafetyConfig = field(default_factory=SafetyConfig)  #: workspace box, table, step limit
     cameras: list[CameraConfig] = field(default_factory=lambda: [CameraConfig()])  #: the RGB-D cameras, one per Observation camera
@@ -93,6 +94,8 @@ class RobotConfig:
         self.home = tuple(float(v) for v in self.home)
         if len(self.home) != 7:
             raise ValueError("home needs 7 numbers: xyz + quaternion xyzw")
+        if not 0.0 < self.eval_share <= 1.0:
+            raise ValueError("eval_share must be in (0, 1]")
         if self.scripted_operator and self.arm != "franky-sim":
             raise ValueError("scripted_operator needs arm: franky-sim (it reads the simulated target)")
         self.scene_bounds = tuple(float(v) for v in self.scene_bounds)
