@@ -144,8 +144,8 @@ def write_results(args: argparse.Namespace) -> learning.Curve:
     results, stem = Path(args.results_dir), results_stem(args)
     if curve:
         learning.write_csv(results / f"{stem}-s{args.seed}.csv", curve, learning.curve_fields(curve))
-    seeds = {int(p.stem.rsplit("-s", 1)[1]): read_curve_csv(p) for p in sorted(results.glob(f"{stem}-s*.csv"))
-             if p.stem.rsplit("-s", 1)[1].isdigit()}
+    seeds = {int(p.stem[len(stem) + 2:]): read_curve_csv(p) for p in sorted(results.glob(f"{stem}-s*.csv"))
+             if p.stem[len(stem) + 2:].isdigit()}  # not another tag's: robot-reach-robot-slow-s1
     if seeds:
         combined = learning.aggregate(list(seeds.values()))
         learning.write_csv(results / f"{stem}.csv", combined, learning.AGGREGATE_FIELDS)

@@ -178,6 +178,7 @@ def test_robot_seeds_combine_from_their_csvs_even_when_run_in_other_sessions(tmp
            {"minutes": 6.0, "env_steps": 74, "learner_step": 50, "weights_version": 6, "success_rate": 0.5, "episodes": 20}]
     robot_learning.learning.write_csv(results / "robot-reach-robot-s1.csv", old, robot_learning.learning.CURVE_FIELDS)
     assert robot_learning.read_curve_csv(results / "robot-reach-robot-s1.csv") == old
+    robot_learning.learning.write_csv(results / "robot-reach-robot-slow-s3.csv", old[:1], robot_learning.learning.CURVE_FIELDS)
     args = robot_learning.parse_args(["--seed", "2", "--plot-only", "--runs-dir", str(runs), "--results-dir", str(results)])
     assert robot_learning.write_results(args)
     with (results / "robot-reach-robot.csv").open() as f:
