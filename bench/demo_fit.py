@@ -68,20 +68,23 @@ def batch_of(rows, cameras, bounds):
     )
 
 
-def first_pose_errors(agent, tests, cameras, bounds, symmetry: float):
-    """Median x-y error (cm), median yaw error and median yaw error modulo ``symmetry`` (degrees)."""
+def quaternion_yaws(actions) -> np.ndarray:
+    """Yaw (degrees, extrinsic xyz Euler as the rotation bins use) of each pose [.., 8]'s quaternion."""
     import torch
 
-    from qattention.batch import ObservationBatch
     from qattention.rotation import quaternion_to_euler
 
-    obs = ObservationBatch.from_observations([t[0] for t in tests], cameras, scene_bounds=bounds)
-    greedy = np.asarray(agent.act(obs).action)
-    demo = np.stack([t[1] for t in tests])
-    yaw = quaternion_to_euler(torch.as_tensor(np.stack([greedy[:, 3:7], demo[:, 3:7]]), dtype=torch.float64))[..., 2]
-    dyaw = (yaw[0] - yaw[1]).numpy()
-    xy = np.linalg.norm(greedy[:, :2] - demo[:, :2], axis=1) * 100
-    return float(np.median(xy)), float(np.median(wrap(dyaw, 360))), float(np.median(wrap(dyaw, symmetry))), yaw[0]
+    q = torch.as_tensor(np.stack([a[3:7] for a in actions]), dtype=torch.float64)
+    return quaternion_to_euler(q)[..., 2].numpy()
+
+
+def first_pose_errors(agent, test_obs, demo_actions, symmetry: float):
+    """Median x-y error (cm), median yaw error, median yaw error modulo ``symmetry`` (degrees), greedy yaws."""
+    greedy = np.asarray(agent.act(test_obs).action)
+    yaws = quaternion_yaws(greedy)
+    dyaw = yaws - quaternion_yaws(demo_actions)
+    xy = np.linalg.norm(greedy[:, :2] - np.stack(demo_actions)[:, :2], axis=1) * 100
+    return float(np.median(xy)), float(np.median(wrap(dyaw, 360))), float(np.median(wrap(dyaw, symmetry))), yaws
 
 
 def main() -> int:
@@ -104,6 +107,7 @@ def main() -> int:
     from deploy.config import load_config
     from deploy.roles import network_config
     from qattention.agent import C2FARM
+    from qattention.batch import ObservationBatch
 
     torch.manual_seed(args.seed)
     config = load_config(preset=args.preset, overrides=({"sim": {"task": args.task}},))
@@ -117,7 +121,9 @@ def main() -> int:
         obs = env.reset(seed=seed)
         tests.append((obs, np.asarray(env.demo_waypoints()[0].action())))
     env.close()
-    demo_yaw = quaternion_yaws([t[1] for t in tests])
+    demo_actions = [t[1] for t in tests]
+    test_obs = ObservationBatch.from_observations([t[0] for t in tests], cams, scene_bounds=bounds)
+    demo_yaw = quaternion_yaws(demo_actions)
     const = float(np.median(wrap(demo_yaw - statistics.median(demo_yaw), args.yaw_symmetry)))
     print(f"{args.task}: {len(used)} demos (seeds {used}), {len(rows)} keyframe transitions, "
           f"{len(tests)} unseen scenes, recorded in {time.perf_counter() - t0:.0f} s; "
@@ -136,19 +142,10 @@ def main() -> int:
             agent.update(batch_of([rows[i] for i in pick], cams, bounds))
             spent += time.perf_counter() - start
             if u % args.eval_every == 0 or u == args.updates:
-                xy, dyaw, dmod, yaws = first_pose_errors(agent, tests, cams, bounds, args.yaw_symmetry)
+                xy, dyaw, dmod, yaws = first_pose_errors(agent, test_obs, demo_actions, args.yaw_symmetry)
                 print(f"| {aug:g} | {u} | {spent / u:.2f} | {xy:.1f} | {dyaw:.1f} | {dmod:.1f} | "
-                      f"{len(set(np.round(yaws.numpy(), 1)))} |", flush=True)
+                      f"{len(set(np.round(yaws, 1)))} |", flush=True)
     return 0
-
-
-def quaternion_yaws(actions) -> np.ndarray:
-    import torch
-
-    from qattention.rotation import quaternion_to_euler
-
-    q = torch.as_tensor(np.stack([a[3:7] for a in actions]), dtype=torch.float64)
-    return quaternion_to_euler(q)[..., 2].numpy()
 
 
 if __name__ == "__main__":

@@ -42,14 +42,15 @@ class JointTrajectory:
         return self.path[k] + u * (s - self.cumulative[k]), u * sd
 
 
-def _calculate(dofs: int, start, goal, vmax, amax, jmax) -> Trajectory:
-    inp = InputParameter(dofs)
-    inp.current_position, inp.target_position = list(start), list(goal)
-    inp.current_velocity = inp.current_acceleration = [0.0] * dofs
-    inp.target_velocity = inp.target_acceleration = [0.0] * dofs
-    inp.max_velocity, inp.max_acceleration, inp.max_jerk = list(vmax), list(amax), list(jerk_floor(jmax))
-    traj = Trajectory(dofs)
-    result = Ruckig(dofs).calculate(inp, traj)
+def _along_path(length: float, vmax: float, amax: float, jmax: float) -> Trajectory:
+    """Time-optimal 1-DoF Ruckig profile from rest at arc length 0 to rest at ``length``."""
+    inp = InputParameter(1)
+    inp.current_position, inp.target_position = [0.0], [float(length)]
+    inp.current_velocity = inp.current_acceleration = [0.0]
+    inp.target_velocity = inp.target_acceleration = [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [float(vmax)], [float(amax)], list(jerk_floor([jmax]))
+    traj = Trajectory(1)
+    result = Ruckig(1).calculate(inp, traj)
     if result not in (Result.Working, Result.Finished):
         raise RuntimeError(f"Ruckig failed: {result}")
     return traj
@@ -69,6 +70,5 @@ def parameterise(path: np.ndarray, velocity_scale: float = 0.5, acceleration_sca
     # the steepest joint per unit arc length bounds the path speed
     slope = np.max(np.abs(np.diff(path, axis=0)) / np.maximum(lengths[:, None], 1e-12), axis=0)
     slope = np.maximum(slope, 1e-9)
-    traj = _calculate(1, [0.0], [cumulative[-1]], [np.min(vmax / slope)], [np.min(amax / slope)],
-                      [np.min(jmax / slope)])
+    traj = _along_path(cumulative[-1], np.min(vmax / slope), np.min(amax / slope), np.min(jmax / slope))
     return JointTrajectory(traj, path, cumulative)
