@@ -11,6 +11,7 @@ import logging
 import time
 import zlib
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 import torch
@@ -142,11 +143,17 @@ def episode_seed(base_seed: int, instance: str, episode_id: int) -> int:
 
 
 class ActingPolicy:
-    """The cascade plus the weights it currently runs, swapped only when asked."""
+    """The cascade plus the weights it currently runs, swapped only when asked.
 
-    def __init__(self, qconfig: QAttentionConfig, follower: WeightsFollower):
+    ``epsilon``, when given, maps the running weights' learner step to the exploration
+    probability (ActorConfig.epsilon_at); without it qconfig's epsilon stays.
+    """
+
+    def __init__(self, qconfig: QAttentionConfig, follower: WeightsFollower,
+                 epsilon: Callable[[int], float] | None = None):
         self.agent = C2FARM(qconfig, device=torch.device("cpu"))
         self.follower = follower
+        self.epsilon = epsilon
         self.swaps = 0
         self.adopted: WeightsUpdate | None = None  #: the update now running (its steps label an evaluation)
 
@@ -161,6 +168,8 @@ class ActingPolicy:
             return False  # nothing new, or it did not fit the networks (counted; the old weights stay)
         self.swaps += 1
         self.adopted = update
+        if self.epsilon is not None:
+            self.agent.config = self.agent.config.replace(epsilon=self.epsilon(update.learner_step))
         return True
 
     def wait_for_first(self, timeout_s: float, stop) -> None:
@@ -184,7 +193,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
     env = PandaEnv(sim_config)
     session = open_session(ctx.fabric)
     follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
-    policy = ActingPolicy(qconfig, follower)
+    policy = ActingPolicy(qconfig, follower, epsilon=config.epsilon_at)
     outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s, config.outbox_wait_s,
                     stop=ctx.stop)
     stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0, "reach_checks": 0, "reach_replaced": 0}
@@ -194,6 +203,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
 
     def counters() -> dict[str, float]:
         return {**stats, **outbox.counters, "outbox_pending": outbox.pending, "weights_version": policy.version,
+                "epsilon": policy.agent.config.epsilon,
                 **follower.counters(), "weights_latency_s": follower.latency_s,
                 "success_rate": stats["successes"] / max(1, stats["episodes"]),
                 "unreachable_rate": stats["unreachable"] / max(1, stats["episodes"])}

@@ -10,6 +10,8 @@ class ActorConfig:
     """How an actor acts, delivers episodes and (as an evaluator) measures success."""
 
     epsilon: float = 0.1  #: exploration probability per depth / rotation axis / gripper on training actors
+    epsilon_final: float = 0.02  #: epsilon once decayed (only with epsilon_decay_updates > 0)
+    epsilon_decay_updates: int = 0  #: linearly anneal epsilon to epsilon_final over this many learner updates; 0 = constant
     reachable_top_k: int = 0  #: an unreachable choice gives way to the best reachable (IK test) of the top-K; 0 = off (reference)
     torch_threads: int = 1  #: intra-op threads for acting (one core per actor)
     outbox_size: int = 16  #: unacknowledged episodes kept for resending; a full outbox waits, then drops the oldest
@@ -28,5 +30,20 @@ class ActorConfig:
     def __post_init__(self) -> None:
         if self.eval_episodes < 1 or self.eval_min_episodes < 1:
             raise ValueError("eval_episodes and eval_min_episodes must be >= 1")
+        if not (0.0 <= self.epsilon <= 1.0 and 0.0 <= self.epsilon_final <= 1.0):
+            raise ValueError("epsilon and epsilon_final must be in [0, 1]")
+        if self.epsilon_decay_updates < 0:
+            raise ValueError("epsilon_decay_updates must be >= 0 (0 = constant epsilon)")
         if self.reachable_top_k < 0:
             raise ValueError("reachable_top_k must be >= 0 (0 = off)")
+
+    def epsilon_at(self, learner_step: int) -> float:
+        """Exploration probability when acting with weights from this learner step (DQN's linear anneal).
+
+        Keyed to the learner's step, which every weights update carries, rather than to the
+        actor's own episodes, so all actors, and one restarted mid-run, agree.
+        """
+        if self.epsilon_decay_updates <= 0:
+            return self.epsilon
+        done = min(1.0, max(0, learner_step) / self.epsilon_decay_updates)
+        return self.epsilon + (self.epsilon_final - self.epsilon) * done

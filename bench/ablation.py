@@ -2,6 +2,7 @@
 
     python bench/ablation.py --task push_button --minutes 10 --seeds 3                  # every lever
     python bench/ablation.py --task push_button --minutes 10 --seeds 3 --variants default base no-margin
+    python bench/ablation.py --task push_button --minutes 10 --seeds 3 --stop-at 0.9    # a run ends once it holds 90 %
     python bench/ablation.py --task push_button --seeds 3 --summary                     # read the runs, run nothing
     python bench/ablation.py --list                                                     # the levers
 
@@ -20,6 +21,7 @@ the worst seed gets there sooner.
 from __future__ import annotations
 
 import argparse
+import csv
 import subprocess
 import sys
 from pathlib import Path
@@ -38,11 +40,17 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "unreachable-minus-1": ("sim.unreachable_reward=-1.0",),
     "uniform-exploration": ("qattention.exploration=uniform",),
     "epsilon-0.2": ("actor.epsilon=0.2",),
+    "epsilon-decay": ("actor.epsilon_decay_updates=300",),  # 0.1 -> 0.02 over the first 300 updates
     "acting-average": ("learner.acting_average=0.99",),
-    # The replay's rate limiter holds samples per insert within 100 transitions of the target.
-    "spi-1": ("replay.samples_per_insert=1.0", "replay.samples_per_insert_error_buffer=100"),
-    "spi-2": ("replay.samples_per_insert=2.0", "replay.samples_per_insert_error_buffer=100"),
-    "spi-4": ("replay.samples_per_insert=4.0", "replay.samples_per_insert_error_buffer=100"),
+    # The replay's rate limiter holds samples per insert within 100 transitions of the target, both
+    # ways: the learner waits for inserts, and inserts (so the actors, through their outboxes) wait
+    # for samples. Unheld, a 2-core host settles near 1.5 samples per insert by itself.
+    "spi-1": ("replay.samples_per_insert=1.0", "replay.samples_per_insert_error_buffer=100",
+              "replay.limit_inserts=true", "replay.insert_wait_timeout_s=30"),
+    "spi-2": ("replay.samples_per_insert=2.0", "replay.samples_per_insert_error_buffer=100",
+              "replay.limit_inserts=true", "replay.insert_wait_timeout_s=30"),
+    "spi-4": ("replay.samples_per_insert=4.0", "replay.samples_per_insert_error_buffer=100",
+              "replay.limit_inserts=true", "replay.insert_wait_timeout_s=30"),
     "bf16": ("qattention.bf16=true",),  # where auto resolves to fp32 (no native bf16)
     "fp32": ("qattention.bf16=false",),  # where auto resolves to bf16 (AVX-512-bf16, AMX, GPU)
     "yaw-augmentation": ("qattention.demo_yaw_augmentation=45",),
@@ -56,14 +64,36 @@ def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str
             "--results-dir", args.results_dir]
     for item in (*LEVERS[variant], *args.set):
         argv += ["--set", item]
+    if args.stop_at is not None:
+        argv += ["--stop-at", f"{args.stop_at:g}", "--stop-held", str(args.stop_held)]
     return argv
 
 
 def seed_curves(args: argparse.Namespace, variant: str) -> dict[int, learning.Curve]:
-    """The variant's seeds that have evaluations (each run's eval.csv)."""
+    """The variant's seeds that have evaluations (each run's eval.csv).
+
+    Each curve's last point also gets the samples per insert the replay had reached by the
+    learner's last logged batch (``samples_per_insert``), the ratio the replay-ratio levers turn.
+    """
     parsed = learning.parse_args(learning_args(args, variant, args.first_seed))
     parsed.seeds = args.seeds
-    return {seed: curve for seed, curve in learning.load_seeds(parsed).items()}
+    curves = learning.load_seeds(parsed)
+    run_ids = learning.seed_run_ids(parsed)
+    for seed, curve in curves.items():
+        ratio = achieved_samples_per_insert(Path(args.runs_dir) / run_ids[seed])
+        if ratio is not None:
+            curve[-1]["samples_per_insert"] = ratio
+    return curves
+
+
+def achieved_samples_per_insert(run_dir: Path) -> Optional[float]:
+    """The replay's sampled/inserted transitions at the learner's last logged batch (learner.csv)."""
+    try:
+        with (run_dir / "metrics" / "learner.csv").open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        return float(rows[-1]["replay_samples_per_insert"])
+    except (FileNotFoundError, IndexError, KeyError, TypeError, ValueError):
+        return None
 
 
 def slowest(curves: Sequence[learning.Curve], threshold: float) -> Optional[dict]:
@@ -76,17 +106,20 @@ def slowest(curves: Sequence[learning.Curve], threshold: float) -> Optional[dict
 
 def table(results: Mapping[str, Mapping[int, learning.Curve]], thresholds: Sequence[float]) -> str:
     """Markdown: per variant, each seed's time to each threshold, then the slowest seed's."""
-    header = ["variant", "seed"] + [f"first ≥ {100 * t:g} %" for t in thresholds] + ["final success", "evals"]
+    header = (["variant", "seed"] + [f"first ≥ {100 * t:g} %" for t in thresholds]
+              + ["final success", "evals", "samples/insert"])
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for variant, curves in results.items():
         for seed, curve in sorted(curves.items()):
             cells = [variant, str(seed)] + [learning._reached(learning.first_reaching(curve, t)) for t in thresholds]
-            lines.append("| " + " | ".join(cells + [f"{100 * curve[-1]['success_rate']:.0f} %", str(len(curve))]) + " |")
+            ratio = curve[-1].get("samples_per_insert")
+            cells += [f"{100 * curve[-1]['success_rate']:.0f} %", str(len(curve)), "" if ratio is None else f"{ratio:.2f}"]
+            lines.append("| " + " | ".join(cells) + " |")
         if len(curves) > 1:
             cells = [f"**{variant}**", "slowest"] + [learning._reached(slowest(list(curves.values()), t))
                                                       for t in thresholds]
             worst_final = min(c[-1]["success_rate"] for c in curves.values())
-            lines.append("| " + " | ".join(cells + [f"{100 * worst_final:.0f} %", ""]) + " |")
+            lines.append("| " + " | ".join(cells + [f"{100 * worst_final:.0f} %", "", ""]) + " |")
     return "\n".join(lines)
 
 
@@ -100,6 +133,9 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--variants", nargs="+", default=list(LEVERS), metavar="NAME", help="levers to compare (--list)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every run")
     parser.add_argument("--thresholds", type=float, nargs="+", default=[0.5, 0.9], help="success rates to time")
+    parser.add_argument("--stop-at", type=float, default=None, metavar="RATE",
+                        help="stop a run once its last --stop-held evaluations reached this rate (saves the budget)")
+    parser.add_argument("--stop-held", type=int, default=3, metavar="N", help="evaluations --stop-at must hold")
     parser.add_argument("--runs-dir", default="runs", help="where runs live")
     parser.add_argument("--results-dir", default="bench/results", help="where curves and the table go")
     parser.add_argument("--summary", action="store_true", help="only read the runs and print the table")
@@ -134,7 +170,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     text = table({v: c for v, c in results.items() if c}, args.thresholds)
     out = Path(args.results_dir) / f"ablation-{args.task}-{args.preset}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(f"{args.task}, preset {args.preset}, {args.minutes:g} min per run\n\n{text}\n")
+    early = (f", stopped once {args.stop_held} evaluations in a row reached {100 * args.stop_at:g} %"
+             if args.stop_at is not None else "")
+    out.write_text(f"{args.task}, preset {args.preset}, {args.minutes:g} min per run{early}\n\n{text}\n")
     print(text)
     print(f"wrote {out}")
     if failed:

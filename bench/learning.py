@@ -12,7 +12,8 @@ Each seed runs the whole distributed system (``c2farm launch``) as it would run 
 run ``<prefix>-s<seed>`` with ``--set run.seed=<seed>`` (prefix: ``learn-<task>-<preset>[-<tag>]``,
 or ``--prefix``); extra ``--set`` items go to every seed. Seeds run one after the other, since a
 small machine has few cores to share. The bench stops a run (SIGINT to its process group) once
-it has had ``--minutes`` of wall-clock time in all.
+it has had ``--minutes`` of wall-clock time in all, or, with ``--stop-at RATE``, once its last
+``--stop-held`` evaluations all reached RATE (an ablation times the thresholds and needs no more).
 
 Rerunning the same command resumes rather than restarts: the launcher resumes an existing run
 id, and ``runs/<id>/bench_budget.json`` records the wall-clock segments the bench has given that
@@ -43,7 +44,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Optional, Sequence
+from typing import Callable, Mapping, Optional, Sequence
 
 BUDGET_FILE = "bench_budget.json"
 CURVE_FIELDS = ["minutes", "env_steps", "learner_step", "weights_version", "success_rate", "episodes"]
@@ -306,8 +307,14 @@ def stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def run_budgeted(cmd: Sequence[str], run_dir: Path, budget_s: float, progress_every: float = 30.0) -> Optional[int]:
-    """Run cmd until the run has had budget_s seconds over all bench launches.
+def held(curve: Curve, threshold: float, times: int) -> bool:
+    """True when the last ``times`` evaluations all reached ``threshold`` (a run that can stop)."""
+    return times > 0 and len(curve) >= times and all(p["success_rate"] >= threshold for p in curve[-times:])
+
+
+def run_budgeted(cmd: Sequence[str], run_dir: Path, budget_s: float, progress_every: float = 30.0,
+                 done: Optional[Callable[[], bool]] = None) -> Optional[int]:
+    """Run cmd until the run has had budget_s seconds over all bench launches, or ``done()``.
 
     Returns the exit code if it ended by itself, None if the bench stopped it (or had no time
     left). The spent time is saved every progress_every seconds and on the way out, Ctrl-C
@@ -330,6 +337,8 @@ def run_budgeted(cmd: Sequence[str], run_dir: Path, budget_s: float, progress_ev
                 pass
             budget.segments[-1][1] = time.time()
             save_budget(run_dir, budget)
+            if code is None and done is not None and done():
+                break
     finally:
         budget.segments[-1][1] = time.time()
         save_budget(run_dir, budget)
@@ -376,11 +385,19 @@ def train(args: argparse.Namespace, run_id: str, seed: Optional[int]) -> bool:
     if left <= 0:
         print(f"{run_id}: budget of {args.minutes:g} min already spent, skipping", flush=True)
         return True
+
+    def done() -> bool:
+        return args.stop_at is not None and held(read_eval(run_dir), args.stop_at, args.stop_held)
+
+    if done():
+        print(f"{run_id}: held {100 * args.stop_at:g} % on its last {args.stop_held} evaluations, skipping", flush=True)
+        return True
     cmd = launch_command(args, run_id, seed)
     hog = f", {args.cpu_hog} core(s) kept busy beside it" if args.cpu_hog else ""
     print(f"{run_id}: {left / 60:.1f} of {args.minutes:g} min left{hog}\n+ {' '.join(cmd)}", flush=True)
     with cpu_hog(args.cpu_hog, left):
-        code = run_budgeted(cmd, run_dir, budget_s)
+        code = run_budgeted(cmd, run_dir, budget_s, progress_every=15.0 if args.stop_at is not None else 30.0,
+                            done=done)
     if code is not None:
         print(f"{run_id}: launcher exited by itself with code {code}", flush=True)
     plot(run_dir)
@@ -440,6 +457,9 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--thresholds", type=float, nargs="+", default=[0.8, 0.9], help="success rates to time")
     parser.add_argument("--cpu-hog", type=int, default=0, metavar="CORES",
                         help="keep this many cores busy during each run (robustness to a shared machine)")
+    parser.add_argument("--stop-at", type=float, default=None, metavar="RATE",
+                        help="stop a run early once its last --stop-held evaluations reached this success rate")
+    parser.add_argument("--stop-held", type=int, default=3, metavar="N", help="evaluations --stop-at must hold")
     parser.add_argument("--plot-only", action="store_true", help="only re-aggregate and re-plot existing runs")
     parser.add_argument("--summary", action="store_true", help="only print the threshold table")
     return parser.parse_args(argv)

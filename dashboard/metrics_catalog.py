@@ -95,6 +95,7 @@ _ACTING: dict[str, Entry] = {  # what every acting process counts: the simulated
     "reach_replaced": _c("actor_reach_replaced",
                          "Decisions whose first choice was unreachable and a reachable candidate replaced it."),
     "weights_version": _g("actor_weights_version", "Weights version this actor acts with (0: initial network)."),
+    "epsilon": _g("actor_epsilon", "Exploration probability this actor acts with now (actor.epsilon, decayed)."),
     "success_rate": RATIO,
 }
 _UNREACHABLE_BY = ("unreachable_", _c("actor_unreachable_episodes_by_reason",

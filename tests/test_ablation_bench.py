@@ -38,7 +38,7 @@ def test_the_table_times_each_seed_and_heads_with_the_slowest():
         "base": {1: curve((1.0, 100, 0.0), (5.0, 500, 0.95)), 2: curve((1.0, 100, 0.0), (6.0, 700, 0.4))},
     }
     rows = ablation.table(results, [0.5, 0.9]).splitlines()
-    assert rows[0] == "| variant | seed | first ≥ 50 % | first ≥ 90 % | final success | evals |"
+    assert rows[0] == "| variant | seed | first ≥ 50 % | first ≥ 90 % | final success | evals | samples/insert |"
     slowest_default = next(r for r in rows if r.startswith("| **default** | slowest"))
     assert "6.0 min, 700 env steps" in slowest_default.split("|")[4] and "5.0 min" in slowest_default.split("|")[3]
     slowest_base = next(r for r in rows if r.startswith("| **base** | slowest"))
@@ -57,3 +57,14 @@ def test_an_unknown_lever_is_one_line_before_anything_runs(capsys):
     with pytest.raises(SystemExit) as exit_:
         ablation.parse_args(["--variants", "default", "more-magic"])
     assert exit_.value.code == 2 and "unknown variant(s) more-magic" in capsys.readouterr().err
+
+
+def test_the_ratio_a_run_achieved_is_read_from_the_learners_log(tmp_path):
+    metrics = tmp_path / "run" / "metrics"
+    metrics.mkdir(parents=True)
+    (metrics / "learner.csv").write_text("step,loss,replay_samples_per_insert\n10,0.5,3.2\n20,0.4,3.9\n")
+    assert ablation.achieved_samples_per_insert(tmp_path / "run") == 3.9
+    assert ablation.achieved_samples_per_insert(tmp_path / "never-ran") is None
+    results = {"spi-4": {1: curve((1.0, 100, 0.0), (5.0, 500, 0.95))}}
+    results["spi-4"][1][-1]["samples_per_insert"] = 3.9
+    assert ablation.table(results, [0.9]).splitlines()[2].endswith("| 2 | 3.90 |")

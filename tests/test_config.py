@@ -12,6 +12,7 @@ from typing import Literal, Optional
 import pytest
 import yaml
 
+from actors.config import ActorConfig
 from conftest import REPO
 from deploy.cli import build_parser, overrides_from_args
 from deploy.config import RunConfig, dump_yaml, load_config, write_run_dir
@@ -176,3 +177,11 @@ def test_reading_the_config_does_not_load_torch():
     code = "import sys, deploy.config, replay_server.service, dashboard.app; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False", out.stderr
+
+
+def test_epsilon_decays_linearly_over_learner_updates_then_stays_at_its_floor():
+    decaying = ActorConfig(epsilon=0.3, epsilon_final=0.05, epsilon_decay_updates=100)
+    assert [round(decaying.epsilon_at(step), 4) for step in (0, 50, 100, 10_000)] == [0.3, 0.175, 0.05, 0.05]
+    assert ActorConfig(epsilon=0.3).epsilon_at(10_000) == 0.3  # no decay asked: constant, as before
+    with pytest.raises(ValueError, match="epsilon"):
+        ActorConfig(epsilon_final=1.5)

@@ -120,6 +120,27 @@ def test_run_budgeted_stops_at_budget_and_a_rerun_spends_only_the_rest(tmp_path:
     assert learning.run_budgeted(quitter, tmp_path / "other", budget_s=30) == 3
 
 
+def test_a_run_stops_once_it_has_held_the_rate_and_a_rerun_does_not_restart_it(tmp_path: Path,
+                                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    assert learning.held([{"success_rate": r} for r in (0.2, 0.9, 0.95)], 0.9, 2)
+    assert not learning.held([{"success_rate": r} for r in (0.9, 0.5, 0.95)], 0.9, 2)
+    sleeper = [sys.executable, "-c", "import time; time.sleep(30)"]
+    checks = iter([False, True])
+    assert learning.run_budgeted(sleeper, tmp_path, budget_s=60, progress_every=0.2, done=lambda: next(checks)) is None
+    assert learning.load_budget(tmp_path).spent < 10  # stopped on done(), long before the budget
+
+    runs = tmp_path / "runs"
+    make_run(runs, "learn-push_button-cpu-small-s1", [0.0, 0.9, 1.0])  # held 90 % twice, budget left
+
+    def no_launch(*_args, **_kwargs):
+        raise AssertionError("relaunched a run that had already held its rate")
+
+    monkeypatch.setattr(learning, "run_budgeted", no_launch)
+    argv = ["--task", "push_button", "--minutes", "10", "--stop-at", "0.9", "--stop-held", "2",
+            "--runs-dir", str(runs), "--results-dir", str(tmp_path / "res")]
+    assert learning.main(argv) == 0
+
+
 def test_cli_skips_seeds_whose_budget_is_spent(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     runs = tmp_path / "runs"
     for seed in (1, 2):

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from actors.actor_loop import ActingPolicy
+from actors.config import ActorConfig
 from actors.weights import WeightsFollower
 from conftest import wait_for
 from learner.config import LearnerConfig
@@ -193,3 +194,20 @@ def test_the_publisher_refuses_non_finite_weights(sessions):
     finally:
         follower.close()
         publisher.close()
+
+
+def test_an_actor_anneals_its_exploration_with_the_learner_step_of_the_weights_it_runs(sessions):
+    learner_session, actor_session, _ = sessions
+    learner = FakeLearner(learner_session, digest=network_digest(TINY))
+    follower = WeightsFollower(actor_session, RUN, network_digest(TINY))
+    schedule = ActorConfig(epsilon=0.2, epsilon_final=0.0, epsilon_decay_updates=10).epsilon_at
+    policy = ActingPolicy(TINY.replace(epsilon=0.2), follower, epsilon=schedule)
+    weights = policy.agent.weights()
+    try:
+        for version, expected in ((5, 0.1), (20, 0.0)):  # FakeLearner publishes learner_step = version
+            learner.publish(version, weights)
+            wait_for(lambda: policy.refresh() or follower.version == version, 30, f"version {version}")
+            assert policy.agent.config.epsilon == pytest.approx(expected)
+    finally:
+        follower.close()
+        learner.close()

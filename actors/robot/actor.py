@@ -102,7 +102,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         env = RobotEnv(arm, channel, robot, task, qconfig.episode_length, ctx.stop, scripted)
         follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
         stack.callback(follower.close)
-        policy = ActingPolicy(qconfig, follower)
+        policy = ActingPolicy(qconfig, follower, epsilon=config.epsilon_at)
         outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s,
                         config.outbox_wait_s, stop=ctx.stop)
         stack.callback(outbox.close)
@@ -110,6 +110,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         def counters() -> dict[str, float]:
             return {**stats, **outbox.counters, **arm.counters, **arm.safety.counters(), **channel.counters,
                     "outbox_pending": outbox.pending, "weights_version": policy.version, **follower.counters(),
+                    "epsilon": policy.agent.config.epsilon,
                     "operator_rejected": fabric_operator.rejected, "paused": float(channel.paused), "stop_to_still_s": arm.last_stop_s,
                     "success_rate": stats["successes"] / max(1, stats["episodes"])}
 
