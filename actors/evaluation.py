@@ -43,6 +43,12 @@ class EvalResult:
     mean_return: float
     unreachable_rate: float  #: episodes that ended on a pose the arm could not reach
 
+    def counters(self) -> dict[str, float]:
+        """The latest evaluation as heartbeat counters (the dashboard's summary and progress line)."""
+        return {"eval_success": self.success_rate, "eval_episodes": self.episodes, "eval_return": self.mean_return,
+                "eval_unreachable": self.unreachable_rate, "eval_version": self.weights_version,
+                "eval_env_steps": self.env_steps}
+
 
 def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras, record_dir: Path | None = None, stop=None,
              on_first: Callable[[Rollout], None] | None = None) -> tuple[float, float, float, int] | None:
@@ -96,12 +102,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
     evaluations = 0
 
     def counters() -> dict[str, float]:
-        done = {"evaluations": evaluations, **follower.counters()}
-        if latest is None:
-            return done
-        return {**done, "eval_success": latest.success_rate, "eval_episodes": latest.episodes,
-                "eval_return": latest.mean_return, "eval_unreachable": latest.unreachable_rate,
-                "eval_version": latest.weights_version, "eval_env_steps": latest.env_steps}
+        return {"evaluations": evaluations, **follower.counters(), **(latest.counters() if latest else {})}
 
     heartbeat = Heartbeat(session, ctx.run_id, "eval", ctx.instance, counters=counters,
                           info=lambda: {"task": sim_config.task})

@@ -98,6 +98,15 @@ _ACTING: dict[str, Entry] = {  # what every acting process counts: the simulated
     "epsilon": _g("actor_epsilon", "Exploration probability this actor acts with now (actor.epsilon, decayed)."),
     "success_rate": RATIO,
 }
+_EVALUATION: dict[str, Entry] = {  # the latest greedy evaluation: the evaluator's, or a robot's own
+    "eval_success": _g("eval_success_ratio", "Greedy success rate of the latest evaluation (0 to 1)."),
+    "eval_episodes": _g("eval_episodes", "Episodes in the latest evaluation."),
+    "eval_return": _g("eval_mean_return", "Mean episode return of the latest evaluation."),
+    "eval_unreachable": _g("eval_unreachable_ratio",
+                           "Share of the latest evaluation's episodes that ended unreachable (0 to 1)."),
+    "eval_version": _g("eval_weights_version", "Weights version of the latest evaluation."),
+    "eval_env_steps": _g("eval_env_steps", "Env steps the run had collected when the evaluated weights were published."),
+}
 _UNREACHABLE_BY = ("unreachable_", _c("actor_unreachable_episodes_by_reason",
                                       "Episodes ended unreachable, by the control agent's reason.", "reason"))
 
@@ -111,6 +120,7 @@ EXACT: dict[str, dict[str, Entry]] = {
     },
     "robot": {  # actors/robot: the actor loop on a real arm (or franky-sim), a person giving reward
         **_ACTING,
+        **_EVALUATION,  # robot.evaluate: the arm plays the greedy episodes itself
         "timeouts": _c("robot_timeout_episodes", "Episodes that ran out of decisions."),
         "operator_stops": _c("robot_operator_stopped_episodes", "Episodes cut short by an operator stop (dropped)."),
         "operator_rejected": _c("robot_operator_messages_rejected",
@@ -128,15 +138,8 @@ EXACT: dict[str, dict[str, Entry]] = {
     },
     "eval": {
         **_FOLLOWER,
+        **_EVALUATION,
         "evaluations": _c("eval_evaluations", "Evaluations completed since the evaluator started."),
-        "eval_success": _g("eval_success_ratio", "Greedy success rate of the latest evaluation (0 to 1)."),
-        "eval_episodes": _g("eval_episodes", "Episodes in the latest evaluation."),
-        "eval_return": _g("eval_mean_return", "Mean episode return of the latest evaluation."),
-        "eval_unreachable": _g("eval_unreachable_ratio",
-                               "Share of the latest evaluation's episodes that ended unreachable (0 to 1)."),
-        "eval_version": _g("eval_weights_version", "Weights version of the latest evaluation."),
-        "eval_env_steps": _g("eval_env_steps",
-                             "Env steps the run had collected when the evaluated weights were published."),
     },
     "demos": {
         **_OUTBOX,

@@ -142,6 +142,7 @@ def summarise(roles: list[dict]) -> dict:
 
     Env steps and episodes add up every acting role: simulated actors and robots alike.
     ``policy_lag`` is, per acting instance, how many weights versions it is behind the learner.
+    The evaluation is the evaluator's, or in a run without one, a robot's own greedy episodes.
     """
     acting = [r for r in roles if r["role"] in ACTING_ROLES and r["alive"]]
 
@@ -150,7 +151,7 @@ def summarise(roles: list[dict]) -> dict:
 
     learner = next(iter(counters("learner")), {})
     replay = next(iter(counters("replay")), {})
-    evaluation = next(iter(counters("eval")), {})
+    evaluation = next(iter(counters("eval") + [c for c in counters("robot") if "eval_success" in c]), {})
     version = learner.get("weights_version")
     return {
         "updates": learner.get("updates"),

@@ -37,3 +37,21 @@ def test_a_gone_actor_no_longer_counts():
     table.on_token("actor", "actor-0", False)
     summary = table.snapshot()["summary"]
     assert summary["env_steps"] == 0 and summary["policy_lag"] == {} and summary["updates"] is None
+
+
+def test_in_a_run_without_an_evaluator_the_robots_own_greedy_evaluation_is_shown():
+    from deploy.progress import progress_line
+
+    table = RoleTable("r")
+    for role, instance, counters in (
+        ("learner", "learner", {"updates": 60, "weights_version": 6}),
+        ("robot", "robot-0", {"env_steps": 40, "episodes": 10, "weights_version": 6,
+                              "eval_success": 0.9, "eval_episodes": 20, "eval_version": 5}),
+    ):
+        table.on_token(role, instance, True)
+        table.on_status(_status(role, instance, **counters))
+
+    summary = table.snapshot()["summary"]
+
+    assert summary["eval_success"] == 0.9 and summary["eval_version"] == 5
+    assert "eval 90% success of 20 episodes (weights v5)" in progress_line(summary, 300.0, 200)

@@ -117,8 +117,14 @@ def _part_builders(session) -> dict[str, Callable[[], dict[str, float]]]:
             operator.put(action, "test")
         return dict(operator.counters)
 
+    def evaluation() -> dict[str, float]:  # the latest greedy evaluation (evaluator, robot actor)
+        from actors.evaluation import EvalResult
+
+        return EvalResult(5, 50, 300, 20, 0.9, 0.9, 0.05).counters()
+
     parts = {"outbox": outbox, "follower": follower, "arm": lambda: dict(arm().counters),
-             "arm.safety": lambda: arm().safety.counters(), "channel": channel}
+             "arm.safety": lambda: arm().safety.counters(), "channel": channel,
+             "latest": evaluation, "latest[0]": evaluation}
     return {name: functools.cache(build) for name, build in parts.items()}
 
 
@@ -143,6 +149,8 @@ class _ClosureReader:
             return out
         if isinstance(node, ast.Name):
             return self._local(node.id)
+        if isinstance(node, ast.IfExp):  # ``x.counters() if x else {}``: either branch's names
+            return self.names(node.body) | self.names(node.orelse)
         source = ast.unparse(node)
         for part, counters in self.shared.items():  # outbox.counters, follower.counters(), ...
             if source in (f"{part}.counters", f"{part}.counters()"):

@@ -110,7 +110,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         def counters() -> dict[str, float]:
             return {**stats, **outbox.counters, **arm.counters, **arm.safety.counters(), **channel.counters,
                     "outbox_pending": outbox.pending, "weights_version": policy.version, **follower.counters(),
-                    "epsilon": policy.agent.config.epsilon,
+                    "epsilon": policy.agent.config.epsilon, **(latest[0].counters() if latest else {}),
                     "operator_rejected": fabric_operator.rejected, "paused": float(channel.paused), "stop_to_still_s": arm.last_stop_s,
                     "success_rate": stats["successes"] / max(1, stats["episodes"])}
 
@@ -119,6 +119,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         stack.callback(heartbeat.close)
         policy.wait_for_first(config.weights_wait_s, ctx.stop)
         evaluated, next_evaluation = 0, 0.0
+        latest: list[EvalResult] = []  # the newest evaluation here, for the heartbeat
         first_id, n = int(time.time() * 1000), 0
         while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
             policy.refresh()
@@ -127,7 +128,9 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
                     and evaluation_due(adopted.version, evaluated, config)):
                 started = time.monotonic()
                 try:
-                    if evaluate_here(env, policy, config, qconfig, adopted, ctx):
+                    result = evaluate_here(env, policy, config, qconfig, adopted, ctx)
+                    if result is not None:
+                        latest[:] = [result]
                         evaluated = adopted.version
                         next_evaluation = training_resumes_until(started, time.monotonic(), robot.eval_share)
                 except OperatorStopped as why:
@@ -180,8 +183,8 @@ def training_resumes_until(started: float, ended: float, share: float) -> float:
 
 
 def evaluate_here(env: RobotEnv, policy: ActingPolicy, config: ActorConfig, qconfig: QAttentionConfig,
-                  update: WeightsUpdate, ctx: RoleContext) -> bool:
-    """The evaluator's greedy episodes on this arm, appended to ``metrics/eval.csv``; False if stopped part-way.
+                  update: WeightsUpdate, ctx: RoleContext) -> EvalResult | None:
+    """The evaluator's greedy episodes on this arm, appended to ``metrics/eval.csv``; None if stopped part-way.
 
     A run with a robot has no simulated evaluator, so this is its learning curve (the
     dashboard's charts and bench/robot_learning.py read that file). Greedy episodes are
@@ -191,16 +194,16 @@ def evaluate_here(env: RobotEnv, policy: ActingPolicy, config: ActorConfig, qcon
     first: list[Rollout] = []
     result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append)
     if result is None:
-        return False
+        return None
     success, mean_return, unreachable, n = result
     if first:
         write_snapshot(ctx.run_dir / "eval", policy, first[0], env.task_name, config.eval_seed, update)
     (ctx.run_dir / "metrics").mkdir(parents=True, exist_ok=True)
-    append_eval_row(ctx.run_dir / "metrics" / "eval.csv", EvalResult(
-        update.version, update.learner_step, update.env_steps, n, success, mean_return, unreachable))
+    done = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return, unreachable)
+    append_eval_row(ctx.run_dir / "metrics" / "eval.csv", done)
     log.info("greedy evaluation of weights v%d: success %.0f%% over %d episodes, %.0f%% unreachable",
              update.version, 100 * success, n, 100 * unreachable)
-    return True
+    return done
 
 
 def terminal_stream():
