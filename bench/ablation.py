@@ -15,7 +15,10 @@ its curves under ``bench/results/<task>-<preset>-<variant>[-s<seed>].{csv,png}``
 The table (markdown, for BENCHMARKS.md; also written to ``bench/results/ablation-<task>-<preset>.md``)
 gives, per variant and seed, when greedy success first reached each threshold (minutes, env
 steps, learner step), then the variant's slowest seed: the headline, since a lever helps only if
-the worst seed gets there sooner.
+the worst seed gets there sooner. ``samples/insert`` is the replay's sampled / inserted
+transitions over the whole run (the first ``min_size_to_sample`` inserts included, so a held
+target reads a little under itself); ``--stop-at`` ends each run once it holds a rate, so
+``final success`` is then the rate it held, not the budget's end.
 """
 
 from __future__ import annotations

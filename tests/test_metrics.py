@@ -124,7 +124,7 @@ def _part_builders(session) -> dict[str, Callable[[], dict[str, float]]]:
 
     parts = {"outbox": outbox, "follower": follower, "arm": lambda: dict(arm().counters),
              "arm.safety": lambda: arm().safety.counters(), "channel": channel,
-             "latest": evaluation, "latest[0]": evaluation}
+             "latest": evaluation}
     return {name: functools.cache(build) for name, build in parts.items()}
 
 

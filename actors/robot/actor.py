@@ -106,11 +106,12 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s,
                         config.outbox_wait_s, stop=ctx.stop)
         stack.callback(outbox.close)
+        latest: EvalResult | None = None  # the newest greedy evaluation on this arm, for the heartbeat
 
         def counters() -> dict[str, float]:
             return {**stats, **outbox.counters, **arm.counters, **arm.safety.counters(), **channel.counters,
                     "outbox_pending": outbox.pending, "weights_version": policy.version, **follower.counters(),
-                    "epsilon": policy.agent.config.epsilon, **(latest[0].counters() if latest else {}),
+                    "epsilon": policy.agent.config.epsilon, **(latest.counters() if latest else {}),
                     "operator_rejected": fabric_operator.rejected, "paused": float(channel.paused), "stop_to_still_s": arm.last_stop_s,
                     "success_rate": stats["successes"] / max(1, stats["episodes"])}
 
@@ -119,7 +120,6 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
         stack.callback(heartbeat.close)
         policy.wait_for_first(config.weights_wait_s, ctx.stop)
         evaluated, next_evaluation = 0, 0.0
-        latest: list[EvalResult] = []  # the newest evaluation here, for the heartbeat
         first_id, n = int(time.time() * 1000), 0
         while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
             policy.refresh()
@@ -130,8 +130,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
                 try:
                     result = evaluate_here(env, policy, config, qconfig, adopted, ctx)
                     if result is not None:
-                        latest[:] = [result]
-                        evaluated = adopted.version
+                        latest, evaluated = result, adopted.version
                         next_evaluation = training_resumes_until(started, time.monotonic(), robot.eval_share)
                 except OperatorStopped as why:
                     log.info("evaluation dropped: %s", why)
