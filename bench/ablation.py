@@ -47,7 +47,7 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "acting-average": ("learner.acting_average=0.99",),
     # The replay's rate limiter holds samples per insert within 100 transitions of the target, both
     # ways: the learner waits for inserts, and inserts (so the actors, through their outboxes) wait
-    # for samples. Unheld, a 2-core host settles near 1.5 samples per insert by itself.
+    # for samples. Unheld, a 2-core host settled near 1.1 (push_button) and 1.45 (pick_and_lift).
     "spi-1": ("replay.samples_per_insert=1.0", "replay.samples_per_insert_error_buffer=100",
               "replay.limit_inserts=true", "replay.insert_wait_timeout_s=30"),
     "spi-2": ("replay.samples_per_insert=2.0", "replay.samples_per_insert_error_buffer=100",
