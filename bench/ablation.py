@@ -149,6 +149,8 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
         parser.error(f"unknown variant(s) {', '.join(unknown)}; known: {', '.join(LEVERS)}")
     if args.seeds < 1 or args.minutes <= 0:
         parser.error("--seeds must be >= 1 and --minutes > 0")
+    if args.stop_at is not None and not (0.0 < args.stop_at <= 1.0 and args.stop_held >= 1):
+        parser.error("--stop-at must be a success rate in (0, 1] and --stop-held >= 1")
     return args
 
 

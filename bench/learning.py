@@ -462,7 +462,10 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--stop-held", type=int, default=3, metavar="N", help="evaluations --stop-at must hold")
     parser.add_argument("--plot-only", action="store_true", help="only re-aggregate and re-plot existing runs")
     parser.add_argument("--summary", action="store_true", help="only print the threshold table")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.stop_at is not None and not (0.0 < args.stop_at <= 1.0 and args.stop_held >= 1):
+        parser.error("--stop-at must be a success rate in (0, 1] and --stop-held >= 1")
+    return args
 
 
 def single_run(args: argparse.Namespace, running: bool) -> int:

@@ -57,6 +57,9 @@ def test_an_unknown_lever_is_one_line_before_anything_runs(capsys):
     with pytest.raises(SystemExit) as exit_:
         ablation.parse_args(["--variants", "default", "more-magic"])
     assert exit_.value.code == 2 and "unknown variant(s) more-magic" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        ablation.parse_args(["--stop-at", "90"])  # a percentage where a rate belongs
+    assert "--stop-at must be a success rate in (0, 1]" in capsys.readouterr().err
 
 
 def test_the_ratio_a_run_achieved_is_read_from_the_learners_log(tmp_path):
