@@ -136,9 +136,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--variants", nargs="+", default=list(LEVERS), metavar="NAME", help="levers to compare (--list)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every run")
     parser.add_argument("--thresholds", type=float, nargs="+", default=[0.5, 0.9], help="success rates to time")
-    parser.add_argument("--stop-at", type=float, default=None, metavar="RATE",
-                        help="stop a run once its last --stop-held evaluations reached this rate (saves the budget)")
-    parser.add_argument("--stop-held", type=int, default=3, metavar="N", help="evaluations --stop-at must hold")
+    learning.add_stop_arguments(parser)
     parser.add_argument("--runs-dir", default="runs", help="where runs live")
     parser.add_argument("--results-dir", default="bench/results", help="where curves and the table go")
     parser.add_argument("--summary", action="store_true", help="only read the runs and print the table")
@@ -149,8 +147,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
         parser.error(f"unknown variant(s) {', '.join(unknown)}; known: {', '.join(LEVERS)}")
     if args.seeds < 1 or args.minutes <= 0:
         parser.error("--seeds must be >= 1 and --minutes > 0")
-    if args.stop_at is not None and not (0.0 < args.stop_at <= 1.0 and args.stop_held >= 1):
-        parser.error("--stop-at must be a success rate in (0, 1] and --stop-held >= 1")
+    learning.check_stop_arguments(parser, args)
     return args
 
 

@@ -441,6 +441,19 @@ def write_results(args: argparse.Namespace, curves: Mapping[int, Curve], combine
     print(f"wrote {results / stem}.csv, {png} and {len(curves)} per-seed CSV(s)")
 
 
+def add_stop_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--stop-at`` / ``--stop-held``: shared with bench/ablation.py, which passes them on."""
+    parser.add_argument("--stop-at", type=float, default=None, metavar="RATE",
+                        help="stop a run early once its last --stop-held evaluations reached this success rate")
+    parser.add_argument("--stop-held", type=int, default=3, metavar="N", help="evaluations --stop-at must hold")
+
+
+def check_stop_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """One line, before anything runs, for a rate outside (0, 1] or a hold under 1."""
+    if args.stop_at is not None and not (0.0 < args.stop_at <= 1.0 and args.stop_held >= 1):
+        parser.error("--stop-at must be a success rate in (0, 1] and --stop-held >= 1")
+
+
 def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="reach_target", help="task to learn")
@@ -457,14 +470,11 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--thresholds", type=float, nargs="+", default=[0.8, 0.9], help="success rates to time")
     parser.add_argument("--cpu-hog", type=int, default=0, metavar="CORES",
                         help="keep this many cores busy during each run (robustness to a shared machine)")
-    parser.add_argument("--stop-at", type=float, default=None, metavar="RATE",
-                        help="stop a run early once its last --stop-held evaluations reached this success rate")
-    parser.add_argument("--stop-held", type=int, default=3, metavar="N", help="evaluations --stop-at must hold")
+    add_stop_arguments(parser)
     parser.add_argument("--plot-only", action="store_true", help="only re-aggregate and re-plot existing runs")
     parser.add_argument("--summary", action="store_true", help="only print the threshold table")
     args = parser.parse_args(argv)
-    if args.stop_at is not None and not (0.0 < args.stop_at <= 1.0 and args.stop_held >= 1):
-        parser.error("--stop-at must be a success rate in (0, 1] and --stop-held >= 1")
+    check_stop_arguments(parser, args)
     return args
 
 
