@@ -57,6 +57,13 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "bf16": ("qattention.bf16=true",),  # where auto resolves to fp32 (no native bf16)
     "fp32": ("qattention.bf16=false",),  # where auto resolves to bf16 (AVX-512-bf16, AMX, GPU)
     "yaw-augmentation": ("qattention.demo_yaw_augmentation=45",),
+    # Coarse-to-fine depth and voxel size, the paper's study written as (voxels per axis at each
+    # depth): a depth-d cube is centred on the voxel chosen before it, half-width bounds_offset[d-1].
+    # (16,16) is the default: 1.9 cm voxels at the last depth in a 30 cm cube.
+    "grid-8-8": ("qattention.voxel_size=8",),  # 3.75 cm last voxels, the cheapest update
+    "grid-8-8-8": ("qattention.voxel_size=8", "qattention.depths=3",  # 1.9 cm again, from 3 cheap nets
+                   "qattention.bounds_offset=[0.15, 0.075]"),
+    "grid-16-16-16": ("qattention.depths=3", "qattention.bounds_offset=[0.15, 0.0375]"),  # 0.5 cm last voxels
 }
 
 
@@ -72,14 +79,20 @@ def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str
     return argv
 
 
+def variant_args(args: argparse.Namespace, variant: str) -> argparse.Namespace:
+    """bench/learning.py's view of the variant: every seed of it, not only the one a run was for."""
+    parsed = learning.parse_args(learning_args(args, variant, args.first_seed))
+    parsed.seeds = args.seeds
+    return parsed
+
+
 def seed_curves(args: argparse.Namespace, variant: str) -> dict[int, learning.Curve]:
     """The variant's seeds that have evaluations (each run's eval.csv).
 
     Each curve's last point also gets the samples per insert the replay had reached by the
     learner's last logged batch (``samples_per_insert``), the ratio the replay-ratio levers turn.
     """
-    parsed = learning.parse_args(learning_args(args, variant, args.first_seed))
-    parsed.seeds = args.seeds
+    parsed = variant_args(args, variant)
     curves = learning.load_seeds(parsed)
     run_ids = learning.seed_run_ids(parsed)
     for seed, curve in curves.items():
@@ -169,6 +182,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 if code:
                     failed.append(f"{variant} seed {seed}")
     results = {variant: seed_curves(args, variant) for variant in args.variants}
+    for variant, curves in results.items():  # each run wrote its own seed's aggregate: now every seed's
+        if curves and not args.summary:
+            parsed = variant_args(args, variant)
+            learning.write_results(parsed, curves, learning.combine(parsed, curves))
     text = table({v: c for v, c in results.items() if c}, args.thresholds)
     out = Path(args.results_dir) / f"ablation-{args.task}-{args.preset}.md"
     out.parent.mkdir(parents=True, exist_ok=True)

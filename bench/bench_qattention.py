@@ -3,6 +3,7 @@
     python bench/bench_qattention.py                 # CPU table (~10 min on 2 cores)
     python bench/bench_qattention.py --device cuda   # GPU: paper preset up to batch 128
     python bench/bench_qattention.py --quick         # smaller batches only
+    python bench/bench_qattention.py --grids default grid-8-8 grid-8-8-8 grid-16-16-16   # update cost per grid
 
 Inputs come from qattention.synthetic (ray-cast table + sphere, 128x128 cameras). Each
 number is the median of 3 timed calls after one warm-up call; on CPU, batches above the
@@ -72,12 +73,44 @@ def variants(device_type):
     ]
 
 
+def time_grids(names, device, batch: int) -> None:
+    """Acting latency and update time of the cpu-small cascade for each grid lever of bench/ablation.py."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from ablation import LEVERS
+    from deploy.config_loader import parse_override
+
+    data = TransitionBatch.from_arrays(transition_arrays(batch, seed=batch), ("front",), device)
+    obs1 = ObservationBatch.from_arrays(observation_arrays(1, seed=1), ("front",), device)
+    print(f"| grid (voxels per depth) | bounds offsets | params | act B=1 (ms) | update B={batch} (s) | updates/s |")
+    print("|---|---|---|---|---|---|")
+    for name in names:
+        changes: dict = {}
+        for item in LEVERS[name]:
+            (section, rest), = parse_override(item).items()
+            if section != "qattention":
+                raise SystemExit(f"{name} is not a grid lever: it sets {section}")
+            changes.update(rest)
+        if isinstance(changes.get("bounds_offset"), list):
+            changes["bounds_offset"] = tuple(changes["bounds_offset"])
+        cfg = cpu_small().replace(**changes)
+        agent = C2FARM(cfg, device, seed=0)
+        params = sum(p.numel() for p in agent.nets.parameters())
+        act = timed(lambda: agent.act(obs1), device, repeats=5)
+        update = timed(lambda: agent.update(data), device, repeats=5, give_up_s=float("inf"))
+        grid = "(" + ",".join([str(cfg.voxel_size)] * cfg.depths) + ")"
+        offsets = ", ".join(f"{cfg.offset(d):g}" for d in range(1, cfg.depths))
+        print(f"| {grid} ({name}) | {offsets} | {params:,} | {act * 1000:.0f} | {update:.2f} | {1 / update:.2f} |",
+              flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--quick", action="store_true", help="batches 8 and 32 only")
     ap.add_argument("--batches", type=int, nargs="*", default=None)
     ap.add_argument("--slow-act-s", type=float, default=1.5)
+    ap.add_argument("--grids", nargs="+", default=None, metavar="LEVER",
+                    help="only time these grid levers of bench/ablation.py (and 'default'), cpu-small, batch 8")
     ap.add_argument("--threads", type=int, default=None,
                     help="torch threads (default: 1 on CPU, robust when other processes share the cores)")
     args = ap.parse_args()
@@ -92,6 +125,9 @@ def main():
     print(f"# torch {torch.__version__}, {gpu or platform.processor() or 'cpu'}, threads {torch.get_num_threads()}, "
           f"cpu capability {torch.backends.cpu.get_cpu_capability()}\n")
 
+    if args.grids:
+        time_grids(args.grids, device, (args.batches or [8])[0])
+        return
     batches = args.batches or ([8, 32] if args.quick else [8, 32, 128])
     big_ok = device.type == "cuda"
     data = {b: TransitionBatch.from_arrays(transition_arrays(b, seed=b), ("front",), device) for b in batches}

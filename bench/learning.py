@@ -49,7 +49,7 @@ from typing import Callable, Mapping, Optional, Sequence
 BUDGET_FILE = "bench_budget.json"
 CURVE_FIELDS = ["minutes", "env_steps", "learner_step", "weights_version", "success_rate", "episodes"]
 OPTIONAL_RATES = ["unreachable_rate"]  # eval.csv columns carried into curves when present
-AGGREGATE_FIELDS = ["minutes", "env_steps", "learner_step", "success_rate", "success_mean", "seeds"]
+AGGREGATE_FIELDS = ["minutes", "env_steps", "learner_step", "success_rate", "success_mean", "seeds", "carried"]
 Curve = list[dict]
 
 
@@ -61,6 +61,8 @@ class Budget:
     """Wall-clock [start, end] segments the bench has given one run, one per bench launch."""
 
     segments: list[list[float]] = field(default_factory=list)
+    #: the success rate the run held when the bench stopped it (``--stop-at``); None while it has not
+    held_rate: Optional[float] = None
 
     @property
     def spent(self) -> float:
@@ -76,13 +78,16 @@ def load_budget(run_dir: Path) -> Budget:
         data = json.loads((run_dir / BUDGET_FILE).read_text())
     except (FileNotFoundError, ValueError):
         return Budget()
-    return Budget([[float(start), float(end)] for start, end in data.get("segments", [])])
+    held = data.get("held_rate")
+    return Budget([[float(start), float(end)] for start, end in data.get("segments", [])],
+                  None if held is None else float(held))
 
 
 def save_budget(run_dir: Path, budget: Budget) -> None:
     """Write atomically, so a bench killed mid-write leaves the previous bookkeeping intact."""
     tmp = run_dir / (BUDGET_FILE + ".tmp")
-    tmp.write_text(json.dumps({"spent_s": round(budget.spent, 3), "segments": budget.segments}) + "\n")
+    tmp.write_text(json.dumps({"spent_s": round(budget.spent, 3), "segments": budget.segments,
+                               "held_rate": budget.held_rate}) + "\n")
     os.replace(tmp, run_dir / BUDGET_FILE)
 
 
@@ -152,29 +157,46 @@ def read_eval(run_dir: Path) -> Curve:
     return curve
 
 
-def aggregate(curves: Sequence[Curve]) -> Curve:
+def read_curve_csv(path: Path) -> Curve:
+    """A per-seed curve written by ``write_results`` (numbers back as floats, counters as ints)."""
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    counters = {"env_steps", "learner_step", "weights_version", "episodes"}
+    return [{k: (int(float(v)) if k in counters else float(v)) for k, v in row.items() if v not in ("", None)}
+            for row in rows]
+
+
+def aggregate(curves: Sequence[Curve], held: Sequence[bool] = ()) -> Curve:
     """Seeds combined by evaluation index k: the k-th evaluation of every seed.
 
     The evaluator scores every few weights versions, so the k-th evaluations of the seeds are
     comparable points in training. ``success_rate`` is the worst seed's success (a curve that
     says "every seed got here"), ``success_mean`` the mean; ``minutes``/``env_steps``/
-    ``learner_step`` are the largest across seeds (when all of them had got there). Only
-    indices every seed has are kept, so the aggregate ends with the shortest seed and
-    ``seeds`` is always the number of curves; a seed with no evaluation empties it.
+    ``learner_step`` are the largest across the seeds that ran that far.
+
+    ``held[i]`` says seed i ended because it held its rate (``--stop-at``): past its last
+    evaluation it keeps that success to the end of the longest seed, so a fast seed that
+    stopped early cannot end the aggregate before a slow seed gets there (``carried`` counts
+    such seeds per row). Any other seed that ends ends the aggregate, since nothing is known of
+    it afterwards; a seed with no evaluation empties it. ``seeds`` is always the number of curves.
     """
-    if not curves:
+    if not curves or not all(curves):
         return []
+    held = list(held) + [False] * (len(curves) - len(held))
     rows: Curve = []
-    for k in range(min(len(c) for c in curves)):
-        points = [c[k] for c in curves]
-        rates = [p["success_rate"] for p in points]
+    for k in range(max(len(c) for c in curves)):
+        live = [c[k] for c in curves if k < len(c)]
+        if any(k >= len(c) and not h for c, h in zip(curves, held)):
+            break
+        rates = [c[min(k, len(c) - 1)]["success_rate"] for c in curves]
         rows.append({
-            "minutes": max(p["minutes"] for p in points),
-            "env_steps": max(p["env_steps"] for p in points),
-            "learner_step": max(p["learner_step"] for p in points),
+            "minutes": max(p["minutes"] for p in live),
+            "env_steps": max(p["env_steps"] for p in live),
+            "learner_step": max(p["learner_step"] for p in live),
             "success_rate": min(rates),
             "success_mean": sum(rates) / len(rates),
-            "seeds": len(points),
+            "seeds": len(curves),
+            "carried": len(curves) - len(live),
         })
     return rows
 
@@ -381,16 +403,17 @@ def train(args: argparse.Namespace, run_id: str, seed: Optional[int]) -> bool:
     """One run's (remaining) budget, then its own learning curve; False if the launcher failed."""
     run_dir = Path(args.runs_dir) / run_id
     budget_s = args.minutes * 60
-    left = load_budget(run_dir).remaining(budget_s)
-    if left <= 0:
-        print(f"{run_id}: budget of {args.minutes:g} min already spent, skipping", flush=True)
-        return True
 
     def done() -> bool:
         return args.stop_at is not None and held(read_eval(run_dir), args.stop_at, args.stop_held)
 
     if done():
+        mark_held(run_dir, args.stop_at)
         print(f"{run_id}: held {100 * args.stop_at:g} % on its last {args.stop_held} evaluations, skipping", flush=True)
+        return True
+    left = load_budget(run_dir).remaining(budget_s)
+    if left <= 0:
+        print(f"{run_id}: budget of {args.minutes:g} min already spent, skipping", flush=True)
         return True
     cmd = launch_command(args, run_id, seed)
     hog = f", {args.cpu_hog} core(s) kept busy beside it" if args.cpu_hog else ""
@@ -400,8 +423,17 @@ def train(args: argparse.Namespace, run_id: str, seed: Optional[int]) -> bool:
                             done=done)
     if code is not None:
         print(f"{run_id}: launcher exited by itself with code {code}", flush=True)
+    elif done():
+        mark_held(run_dir, args.stop_at)
     plot(run_dir)
     return not code
+
+
+def mark_held(run_dir: Path, rate: float) -> None:
+    """Record that the bench stopped this run because it held ``rate``: its curve is then complete."""
+    budget = load_budget(run_dir)
+    budget.held_rate = rate
+    save_budget(run_dir, budget)
 
 
 def _interrupt(_signum: int, _frame: object) -> None:
@@ -428,6 +460,17 @@ def load_seeds(args: argparse.Namespace) -> dict[int, Curve]:
         else:
             print(f"{run_id}: no evaluations, left out of the aggregate")
     return curves
+
+
+def held_seeds(args: argparse.Namespace, seeds) -> list[bool]:
+    """Per seed, whether the bench stopped its run because it held its rate (see ``aggregate``)."""
+    run_ids = seed_run_ids(args)
+    return [load_budget(Path(args.runs_dir) / run_ids[seed]).held_rate is not None for seed in seeds]
+
+
+def combine(args: argparse.Namespace, curves: Mapping[int, Curve]) -> Curve:
+    """The seeds' aggregate, seeds stopped by ``--stop-at`` holding their rate to the end."""
+    return aggregate(list(curves.values()), held_seeds(args, curves))
 
 
 def write_results(args: argparse.Namespace, curves: Mapping[int, Curve], combined: Curve) -> None:
@@ -511,7 +554,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not curves:
         print("no runs with evaluations found")
         return 1
-    combined = aggregate(list(curves.values()))
+    combined = combine(args, curves)
     if not args.summary:
         write_results(args, curves, combined)
     print(summarise({f"seed {s}": c for s, c in curves.items()}, combined, args.thresholds))

@@ -28,7 +28,6 @@ seed's CSV there combined as bench/learning.py does (``success_rate`` = the wors
 from __future__ import annotations
 
 import argparse
-import csv
 import signal
 import subprocess
 import sys
@@ -123,15 +122,6 @@ def train(args: argparse.Namespace) -> bool:
     return not code
 
 
-def read_curve_csv(path: Path) -> learning.Curve:
-    """A per-seed curve written by ``write_results`` (numbers back as floats, counters as ints)."""
-    with path.open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    counters = {"env_steps", "learner_step", "weights_version", "episodes"}
-    return [{k: (int(float(v)) if k in counters else float(v)) for k, v in row.items() if v not in ("", None)}
-            for row in rows]
-
-
 def write_results(args: argparse.Namespace) -> learning.Curve:
     """This seed's curve, then every seed's under the results dir combined (worst seed), as CSVs and a PNG.
 
@@ -144,7 +134,7 @@ def write_results(args: argparse.Namespace) -> learning.Curve:
     results, stem = Path(args.results_dir), results_stem(args)
     if curve:
         learning.write_csv(results / f"{stem}-s{args.seed}.csv", curve, learning.curve_fields(curve))
-    seeds = {int(p.stem[len(stem) + 2:]): read_curve_csv(p) for p in sorted(results.glob(f"{stem}-s*.csv"))
+    seeds = {int(p.stem[len(stem) + 2:]): learning.read_curve_csv(p) for p in sorted(results.glob(f"{stem}-s*.csv"))
              if p.stem[len(stem) + 2:].isdigit()}  # not another tag's: robot-reach-robot-slow-s1
     if seeds:
         combined = learning.aggregate(list(seeds.values()))

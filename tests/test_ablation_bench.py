@@ -71,3 +71,27 @@ def test_the_ratio_a_run_achieved_is_read_from_the_learners_log(tmp_path):
     results = {"spi-4": {1: curve((1.0, 100, 0.0), (5.0, 500, 0.95))}}
     results["spi-4"][1][-1]["samples_per_insert"] = 3.9
     assert ablation.table(results, [0.9]).splitlines()[2].endswith("| 2 | 3.90 |")
+
+
+def test_each_variants_aggregate_holds_every_seed_of_it(tmp_path, monkeypatch):
+    """Seeds interleave, so each learning run sees one seed; the ablation then combines them all."""
+    import csv
+
+    runs, results = tmp_path / "runs", tmp_path / "results"
+    for seed, rates in ((1, (0.0, 0.95, 1.0)), (2, (0.0, 0.5, 0.8, 0.9, 0.95))):
+        run_dir = runs / f"learn-push_button-cpu-small-default-s{seed}"
+        (run_dir / "metrics").mkdir(parents=True)
+        (run_dir / "launched_at").write_text("0\n")
+        rows = ["time,learner_step,env_steps,episodes,success_rate"]
+        rows += [f"{60 * (k + 1)},{50 * k},{100 * k},10,{r}" for k, r in enumerate(rates)]
+        (run_dir / "metrics" / "eval.csv").write_text("\n".join(rows) + "\n")
+    ablation.learning.save_budget(runs / "learn-push_button-cpu-small-default-s1",
+                                  ablation.learning.Budget([[0.0, 180.0]], held_rate=0.9))
+    monkeypatch.setattr(ablation.subprocess, "run", lambda *a, **k: type("Done", (), {"returncode": 0})())
+    argv = ["--task", "push_button", "--variants", "default", "--seeds", "2", "--stop-at", "0.9",
+            "--stop-held", "2", "--runs-dir", str(runs), "--results-dir", str(results)]
+    assert ablation.main(argv) == 0
+    with (results / "push_button-cpu-small-default.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {int(r["seeds"]) for r in rows} == {2} and len(rows) == 5  # seed 1 held 100 % to the end
+    assert [float(r["success_rate"]) for r in rows] == [0.0, 0.5, 0.8, 0.9, 0.95]

@@ -79,6 +79,19 @@ def test_aggregate_aligns_by_evaluation_index_and_stops_at_shortest_seed() -> No
     assert learning.aggregate([long, []]) == [] and learning.aggregate([]) == []
 
 
+def test_a_seed_stopped_because_it_held_its_rate_keeps_it_to_the_end_of_the_longest_seed() -> None:
+    slow = [point(2 * k, 100 * k, 50 * k, r) for k, r in enumerate((0.0, 0.3, 0.6, 0.85, 0.9, 0.95))]
+    fast = [point(2 * k + 1, 90 * k, 50 * k, r) for k, r in enumerate((0.0, 0.9, 0.95))]  # stopped at 95 %
+    rows = learning.aggregate([slow, fast], held=[False, True])
+    assert len(rows) == len(slow)  # not cut where the fast seed stopped
+    assert [r["success_rate"] for r in rows] == [0.0, 0.3, 0.6, 0.85, 0.9, 0.95]  # the slow seed is the worst
+    assert [r["carried"] for r in rows] == [0, 0, 0, 1, 1, 1]
+    assert rows[-1]["success_mean"] == pytest.approx(0.95) and rows[-1]["minutes"] == 10
+    assert learning.first_reaching(rows, 0.9)["minutes"] == 8  # when every seed had got there
+    # A seed that ended for any other reason (budget, crash) still ends the aggregate.
+    assert len(learning.aggregate([slow, fast], held=[False, False])) == len(fast)
+
+
 def test_summary_times_each_threshold_per_seed_and_worst() -> None:
     a = [point(1.0, 0, 0, 0.0), point(5.0, 400, 50, 0.8), point(9.0, 800, 100, 0.7)]
     b = [point(2.0, 0, 0, 0.1), point(6.0, 450, 55, 0.9), point(10.0, 850, 105, 1.0)]
@@ -139,6 +152,7 @@ def test_a_run_stops_once_it_has_held_the_rate_and_a_rerun_does_not_restart_it(t
     argv = ["--task", "push_button", "--minutes", "10", "--stop-at", "0.9", "--stop-held", "2",
             "--runs-dir", str(runs), "--results-dir", str(tmp_path / "res")]
     assert learning.main(argv) == 0
+    assert learning.load_budget(runs / "learn-push_button-cpu-small-s1").held_rate == 0.9  # its curve is complete
 
 
 def test_cli_skips_seeds_whose_budget_is_spent(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -198,7 +212,7 @@ def test_robot_seeds_combine_from_their_csvs_even_when_run_in_other_sessions(tmp
     old = [{"minutes": 1.5, "env_steps": 0, "learner_step": 0, "weights_version": 1, "success_rate": 0.0, "episodes": 10},
            {"minutes": 6.0, "env_steps": 74, "learner_step": 50, "weights_version": 6, "success_rate": 0.5, "episodes": 20}]
     robot_learning.learning.write_csv(results / "robot-reach-robot-s1.csv", old, robot_learning.learning.CURVE_FIELDS)
-    assert robot_learning.read_curve_csv(results / "robot-reach-robot-s1.csv") == old
+    assert robot_learning.learning.read_curve_csv(results / "robot-reach-robot-s1.csv") == old
     robot_learning.learning.write_csv(results / "robot-reach-robot-slow-s3.csv", old[:1], robot_learning.learning.CURVE_FIELDS)
     args = robot_learning.parse_args(["--seed", "2", "--plot-only", "--runs-dir", str(runs), "--results-dir", str(results)])
     assert robot_learning.write_results(args)

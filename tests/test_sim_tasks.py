@@ -88,6 +88,22 @@ def test_the_target_is_red_in_every_episode_as_in_rlbench_variation_0(task):
         assert len(set(colours)) == 3
 
 
+@pytest.mark.parametrize("task", ["push_button", "lift_lid", "open_drawer", "put_in_bin", "stack_wine",
+                                  "put_item_in_drawer"])
+def test_tasks_of_one_rlbench_variation_look_the_same_in_every_episode(task):
+    """Only place and yaw change between episodes, as in the one variation C2F-ARM trains on."""
+    from actors.sim.bullet import p
+
+    env = PandaEnv(SimConfig(task=task, cameras=()))
+    looks = set()
+    for seed in range(6):
+        env.reset(seed)
+        looks.add(tuple((name, tuple(tuple(v[7]) for v in p.getVisualShapeData(body, physicsClientId=env.scene.client)))
+                        for name, body in sorted(env.task.bodies.items())))
+    env.close()
+    assert len(looks) == 1
+
+
 def test_demos_cached_for_an_older_scene_of_a_task_are_not_reused():
     from deploy.config import load_config
     from deploy.roles import demo_dir
@@ -96,4 +112,5 @@ def test_demos_cached_for_an_older_scene_of_a_task_are_not_reused():
         return demo_dir(load_config(preset="cpu-small", overrides=({"sim": {"task": task}},))).name
 
     assert directory("pick_and_lift") == "pick_and_lift-r2-front-128px"  # revision 2: the target is always red
-    assert directory("push_button") == "push_button-front-128px"
+    assert directory("push_button") == "push_button-r2-front-128px"  # revision 2: one colour
+    assert directory("reach_target") == "reach_target-front-128px"

@@ -1,4 +1,8 @@
-"""L3 lift_lid (take_lid_off_saucepan): grasp the small knob of a saucepan lid and lift the lid off."""
+"""L3 lift_lid (take_lid_off_saucepan): grasp the small knob of a saucepan lid and lift the lid off.
+
+RLBench's take_lid_off_saucepan has one variation, which C2F-ARM trains on: the saucepan and lid
+look the same in every episode; only their place and yaw change.
+"""
 
 from __future__ import annotations
 
@@ -16,11 +20,12 @@ class LiftLid(Task):
     name = "lift_lid"
     episode_length = 6
     obstacles = ("pot",)
+    revision = 2  #: 2: the saucepan is always grey (1 drew its colour from four per episode)
 
     def sample(self, rng):
         self.position = np.array([rng.uniform(0.4, 0.6), rng.uniform(-0.2, 0.2), 0.0])
         self.yaw = rng.uniform(-np.pi / 4, np.pi / 4)
-        self.colour = shapes.COLOURS[rng.choice(["grey", "silver", "black", "navy"])]
+        self.colour = shapes.COLOURS["grey"]
 
     def spawn(self, client):
         x, y, _ = self.position

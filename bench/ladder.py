@@ -1,0 +1,235 @@
+"""The task ladder: every task x seeds, each run stopped once it holds its bar, in one table and one figure.
+
+    python bench/ladder.py --seeds 3                         # every rung, seeds interleaved
+    python bench/ladder.py --seeds 3 --tasks lift_lid put_in_bin
+    python bench/ladder.py --seeds 3 --summary               # read the per-seed CSVs, run nothing
+    python bench/ladder.py --list                            # the rungs: bar, budget, per-task entry
+
+A rung is a task, the success rate it must reach (its bar), a wall-clock budget per seed and,
+only where the task needs one, a named per-task entry (config overrides with the reason,
+like the paper's per-task cameras). Every other setting is the preset's. Each seed is one
+``bench/learning.py --tag ladder`` run, stopped once its last ``--stop-held`` evaluations reached
+the bar: resumable (rerun the command; a held or spent seed is skipped), its curve written to
+``bench/results/<task>-<preset>-ladder-s<seed>.csv`` as soon as it ends. Seeds interleave (seed 1
+of every task first), so one diagnostic pass over the ladder comes before any second seed.
+
+Outputs, read from those per-seed CSVs (so seeds run on other days still combine):
+``bench/results/ladder.md`` (per task its demos, cameras, entry, then each seed's minutes /
+env steps / updates to 80 % and to its bar, and the final rate, the worst seed first),
+``ladder.csv`` (the same, one row per seed) and ``ladder.png`` (every task's curves).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Sequence
+
+import learning  # bench/learning.py: runs, curves, thresholds
+
+TAG = "ladder"
+HEADLINE = 0.8  #: every rung is also timed to this rate, so the tasks compare in one column
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One task of the ladder and what it must show."""
+
+    task: str
+    bar: float  #: greedy success rate the worst seed must reach
+    minutes: float  #: wall-clock budget per seed on the 2-core machine
+    overrides: tuple[str, ...] = ()  #: the named per-task entry: config overrides on top of the preset
+    why: str = ""  #: what the per-task entry is for
+
+
+RUNGS: dict[str, Rung] = {r.task: r for r in (
+    Rung("reach_target", 0.9, 20),
+    Rung("push_button", 0.9, 10),
+    Rung("pick_and_lift", 0.8, 60),
+    Rung("lift_lid", 0.8, 30),
+    Rung("open_drawer", 0.8, 60),
+    Rung("put_in_bin", 0.8, 60),
+    Rung("stack_wine", 0.7, 60),
+    Rung("put_item_in_drawer", 0.5, 60),
+)}
+
+
+def learning_args(args: argparse.Namespace, rung: Rung, seed: int) -> list[str]:
+    """bench/learning.py's arguments for one seed of one rung."""
+    argv = ["--task", rung.task, "--minutes", f"{rung.minutes:g}", "--preset", args.preset, "--seeds", "1",
+            "--first-seed", str(seed), "--tag", TAG, "--runs-dir", args.runs_dir, "--results-dir", args.results_dir,
+            "--stop-at", f"{rung.bar:g}", "--stop-held", str(args.stop_held),
+            "--thresholds", f"{HEADLINE:g}", f"{rung.bar:g}"]
+    for item in (*rung.overrides, *args.set):
+        argv += ["--set", item]
+    return argv
+
+
+def seed_curves(args: argparse.Namespace, task: str) -> dict[int, learning.Curve]:
+    """The per-seed CSVs of this rung under the results dir (seeds in range only)."""
+    stem = Path(args.results_dir) / f"{task}-{args.preset}-{TAG}"
+    curves = {}
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        path = Path(f"{stem}-s{seed}.csv")
+        if path.exists():
+            curves[seed] = learning.read_curve_csv(path)
+    return curves
+
+
+def run_config(args: argparse.Namespace, rung: Rung):
+    """The resolved config a rung's runs use (demos and cameras for the table)."""
+    from deploy.config import load_config
+    from deploy.config_loader import parse_override
+
+    overrides = tuple(parse_override(o) for o in (*rung.overrides, *args.set))
+    return load_config(args.preset, overrides=(*overrides, {"sim": {"task": rung.task}}))
+
+
+def _cells(point: Optional[dict]) -> list[str]:
+    if point is None:
+        return ["not reached", "", ""]
+    return [f"{point['minutes']:.1f}", str(point["env_steps"]), str(point["learner_step"])]
+
+
+def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning.Curve]) -> list[dict]:
+    """One row per seed, the worst first: not reaching the bar, then the latest to reach it."""
+    config = run_config(args, rung)
+    rows = []
+    for seed, curve in curves.items():
+        at_80, at_bar = learning.first_reaching(curve, HEADLINE), learning.first_reaching(curve, rung.bar)
+        rows.append({
+            "task": rung.task, "seed": seed, "bar": rung.bar, "demos": config.demos.episodes,
+            "cameras": "+".join(config.sim.cameras), "entry": " ".join(rung.overrides),
+            "minutes_to_80": at_80 and round(at_80["minutes"], 2), "env_steps_to_80": at_80 and at_80["env_steps"],
+            "updates_to_80": at_80 and at_80["learner_step"],
+            "minutes_to_bar": at_bar and round(at_bar["minutes"], 2),
+            "env_steps_to_bar": at_bar and at_bar["env_steps"], "updates_to_bar": at_bar and at_bar["learner_step"],
+            "final_success": curve[-1]["success_rate"], "evaluations": len(curve),
+            "minutes_run": round(curve[-1]["minutes"], 2),
+        })
+    rows.sort(key=lambda r: (r["minutes_to_bar"] is not None, -(r["minutes_to_bar"] or 0.0)))
+    return rows
+
+
+CSV_FIELDS = ["task", "seed", "bar", "demos", "cameras", "entry", "minutes_to_80", "env_steps_to_80", "updates_to_80",
+              "minutes_to_bar", "env_steps_to_bar", "updates_to_bar", "final_success", "evaluations", "minutes_run"]
+
+
+def table(rows_by_task: dict[str, list[dict]]) -> str:
+    """Markdown: one line per seed, grouped by task in ladder order, each task's worst seed first."""
+    header = ["task", "bar", "demos, cameras", "seed", "to 80 % (min, env steps, updates)",
+              "to the bar (min, env steps, updates)", "final", "ran (min)"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for task, rows in rows_by_task.items():
+        for i, r in enumerate(rows):
+            first = i == 0
+            to_80 = _cells(None if r["minutes_to_80"] is None else
+                           {"minutes": r["minutes_to_80"], "env_steps": r["env_steps_to_80"],
+                            "learner_step": r["updates_to_80"]})
+            to_bar = _cells(None if r["minutes_to_bar"] is None else
+                            {"minutes": r["minutes_to_bar"], "env_steps": r["env_steps_to_bar"],
+                             "learner_step": r["updates_to_bar"]})
+            setup = f"{r['demos']}, {r['cameras']}" + (f"; `{r['entry']}`" if r["entry"] else "")
+            lines.append("| " + " | ".join([
+                f"**{task}**" if first else "", f"{100 * r['bar']:g} %" if first else "", setup if first else "",
+                f"{r['seed']}" + (" (worst)" if first and len(rows) > 1 else ""),
+                ", ".join(c for c in to_80 if c), ", ".join(c for c in to_bar if c),
+                f"{100 * r['final_success']:.0f} %", f"{r['minutes_run']:.1f}"]) + " |")
+    return "\n".join(lines)
+
+
+def plot(curves_by_task: dict[str, dict[int, learning.Curve]], out_png: Path) -> Path:
+    """Every task's seeds against wall-clock minutes, one panel a task, its bar dashed."""
+    plt = learning._pyplot()
+    tasks = list(curves_by_task)
+    cols = min(4, len(tasks))
+    rows = (len(tasks) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 2.8 * rows), sharey=True, squeeze=False)
+    for ax in axes.flat[len(tasks):]:
+        ax.axis("off")
+    for ax, task in zip(axes.flat, tasks):
+        for seed, curve in sorted(curves_by_task[task].items()):
+            ax.plot([p["minutes"] for p in curve], [100 * p["success_rate"] for p in curve], lw=1.2, label=f"seed {seed}")
+        ax.axhline(100 * RUNGS[task].bar, ls="--", color="grey", lw=1)
+        ax.set_title(task, fontsize="medium")
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("minutes")
+        if curves_by_task[task]:
+            ax.legend(fontsize="x-small", loc="lower right")
+    for row in axes:
+        row[0].set_ylabel("greedy success (%)")
+    fig.tight_layout()
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return out_png
+
+
+def write_results(args: argparse.Namespace) -> str:
+    """ladder.{md,csv,png} from the per-seed CSVs of every rung in ``--tasks``; returns the table."""
+    curves = {task: seed_curves(args, task) for task in args.tasks}
+    rows = {task: seed_rows(args, RUNGS[task], c) for task, c in curves.items() if c}
+    results = Path(args.results_dir)
+    learning.write_csv(results / "ladder.csv", [r for task_rows in rows.values() for r in task_rows], CSV_FIELDS)
+    text = table(rows)
+    missing = [t for t in args.tasks if not curves[t]]
+    note = f"\n\nNo seed has run yet: {', '.join(missing)}." if missing else ""
+    (results / "ladder.md").write_text(
+        f"Preset {args.preset}, seeds {args.first_seed}-{args.first_seed + args.seeds - 1}, each run stopped once "
+        f"{args.stop_held} evaluations in a row reached its bar.\n\n{text}{note}\n")
+    plot(curves, results / "ladder.png")
+    return text + note
+
+
+def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tasks", nargs="+", default=list(RUNGS), metavar="TASK", help="rungs to run (default: all)")
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per task")
+    parser.add_argument("--first-seed", type=int, default=1, help="seed of the first run of each task")
+    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
+    parser.add_argument("--stop-held", type=int, default=2, metavar="N", help="evaluations in a row at the bar to stop")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every run")
+    parser.add_argument("--runs-dir", default="runs", help="where runs live")
+    parser.add_argument("--results-dir", default="bench/results", help="where curves and the table go")
+    parser.add_argument("--summary", action="store_true", help="only read the per-seed CSVs and write the table")
+    parser.add_argument("--list", action="store_true", help="print the rungs")
+    args = parser.parse_args(argv)
+    unknown = [t for t in args.tasks if t not in RUNGS]
+    if unknown:
+        parser.error(f"unknown task(s) {', '.join(unknown)}; the ladder: {', '.join(RUNGS)}")
+    if args.seeds < 1 or args.stop_held < 1:
+        parser.error("--seeds and --stop-held must be >= 1")
+    return args
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = parse_args(argv)
+    if args.list:
+        for r in RUNGS.values():
+            entry = f"  {' '.join(r.overrides)} ({r.why})" if r.overrides else ""
+            print(f"{r.task:>20}  bar {100 * r.bar:g} %, {r.minutes:g} min per seed{entry}")
+        return 0
+    failed = []
+    if not args.summary:
+        bench = Path(__file__).with_name("learning.py")
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            for task in args.tasks:
+                code = subprocess.run([sys.executable, str(bench), *learning_args(args, RUNGS[task], seed)]).returncode
+                if code == 130:  # interrupted: the rerun resumes from here
+                    print("interrupted; rerun the same command to resume", flush=True)
+                    return 130
+                if code:
+                    failed.append(f"{task} seed {seed}")
+    print(write_results(args))
+    print(f"wrote {Path(args.results_dir) / 'ladder'}.{{md,csv,png}}")
+    if failed:
+        print(f"runs that failed: {', '.join(failed)}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""bench/ladder.py: every rung is a config the run accepts, and the table puts each task's worst seed first."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO / "bench"))  # ladder.py imports its sibling learning.py
+_spec = importlib.util.spec_from_file_location("bench_ladder", REPO / "bench" / "ladder.py")
+ladder = importlib.util.module_from_spec(_spec)
+sys.modules["bench_ladder"] = ladder  # dataclasses look their module up here
+_spec.loader.exec_module(ladder)
+
+
+def write_seed(results: Path, task: str, seed: int, rates: list[float], minutes_apart: float) -> None:
+    curve = [{"minutes": minutes_apart * (k + 1), "env_steps": 200 * k, "learner_step": 50 * k, "weights_version": 1 + 5 * k,
+              "success_rate": r, "episodes": 20} for k, r in enumerate(rates)]
+    ladder.learning.write_csv(results / f"{task}-cpu-small-ladder-s{seed}.csv", curve, ladder.learning.CURVE_FIELDS)
+
+
+def test_the_ladder_is_every_task_and_each_rung_a_config_the_run_accepts():
+    from actors.sim.task_names import TASKS
+
+    assert tuple(ladder.RUNGS) == TASKS
+    for rung in ladder.RUNGS.values():
+        config = ladder.run_config(ladder.parse_args([]), rung)
+        assert config.sim.task == rung.task
+        assert not rung.overrides or rung.why, f"{rung.task}: a per-task entry says why"
+
+
+def test_each_seed_is_a_learning_run_stopped_at_its_bar():
+    args = ladder.parse_args(["--tasks", "stack_wine"])
+    argv = ladder.learning_args(args, ladder.RUNGS["stack_wine"], 2)
+    assert argv[argv.index("--stop-at") + 1] == "0.7" and argv[argv.index("--first-seed") + 1] == "2"
+    assert argv[argv.index("--tag") + 1] == "ladder" and argv[argv.index("--minutes") + 1] == "60"
+
+
+def test_the_table_puts_each_tasks_worst_seed_first_and_writes_md_csv_png(tmp_path):
+    results = tmp_path / "results"
+    write_seed(results, "push_button", 1, [0.0, 0.95, 1.0], 1.0)
+    write_seed(results, "push_button", 2, [0.0, 0.5, 0.85, 0.9, 0.95], 1.0)  # the slowest to 90 %
+    write_seed(results, "lift_lid", 1, [0.0, 0.85, 0.9], 2.0)
+    write_seed(results, "lift_lid", 2, [0.0, 0.2, 0.4], 2.0)  # never reached 80 %
+    args = ladder.parse_args(["--tasks", "push_button", "lift_lid", "open_drawer", "--seeds", "2", "--summary",
+                              "--results-dir", str(results)])
+    assert ladder.main(["--tasks", "push_button", "lift_lid", "open_drawer", "--seeds", "2", "--summary",
+                        "--results-dir", str(results)]) == 0
+    lines = (results / "ladder.md").read_text().splitlines()
+    push = lines.index(next(line for line in lines if line.startswith("| **push_button**")))
+    assert "| 2 (worst) |" in lines[push] and "4.0, 600, 150" in lines[push]  # seed 2 reached 90 % at 4 min
+    assert lines[push + 1].startswith("|  |  |  | 1 |")
+    lid = next(line for line in lines if line.startswith("| **lift_lid**"))
+    assert "| 2 (worst) | not reached | not reached | 40 % |" in lid
+    assert lines[-1] == "No seed has run yet: open_drawer."
+    with (results / "ladder.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["task"], r["seed"]) for r in rows] == [("push_button", "2"), ("push_button", "1"),
+                                                       ("lift_lid", "2"), ("lift_lid", "1")]
+    assert rows[0]["demos"] == "10" and rows[0]["cameras"] == "front"
+    assert (results / "ladder.png").stat().st_size > 0
+    assert args.seeds == 2
+
+
+def test_an_unknown_task_is_one_line_before_anything_runs(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        ladder.parse_args(["--tasks", "lift_lid", "fold_laundry"])
+    assert exit_.value.code == 2 and "unknown task(s) fold_laundry" in capsys.readouterr().err
