@@ -64,6 +64,11 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "grid-8-8-8": ("qattention.voxel_size=8", "qattention.depths=3",  # 1.9 cm again, from 3 cheap nets
                    "qattention.bounds_offset=[0.15, 0.075]"),
     "grid-16-16-16": ("qattention.depths=3", "qattention.bounds_offset=[0.15, 0.0375]"),  # 0.5 cm last voxels
+    # Cameras fused into one grid (the paper adds wrist and shoulder views where the front one is occluded).
+    "front-wrist": ("sim.cameras=[front, wrist]",),
+    "four-cameras": ("sim.cameras=[front, left_shoulder, right_shoulder, wrist]",),
+    "front-wrist-grid-8-8-8": ("sim.cameras=[front, wrist]", "qattention.voxel_size=8", "qattention.depths=3",
+                               "qattention.bounds_offset=[0.15, 0.075]"),  # lift_lid's ladder entry
 }
 
 
