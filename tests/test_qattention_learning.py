@@ -127,7 +127,7 @@ def test_demo_margin_teaches_the_demos_choices_without_any_reward():
 
     def trained(margin):
         torch.manual_seed(0)
-        agent = C2FARM(SMALL.replace(crop_augmentation=False, demo_margin=margin), seed=0)
+        agent = C2FARM(SMALL.replace(crop_augmentation=False, demo_margin=margin, bf16=False), seed=0)
         for _ in range(100):
             agent.update(b)
         voxels, _, _, rot_grip = agent.labels(b)
