@@ -32,6 +32,8 @@ from typing import Mapping, Optional, Sequence
 
 import learning  # bench/learning.py: runs, curves, thresholds
 
+GRID_8_8_8 = ("qattention.voxel_size=8", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.075]")
+
 #: Variant name -> config overrides on top of the preset. Each turns one lever of issue 13.
 LEVERS: dict[str, tuple[str, ...]] = {
     "default": (),
@@ -61,14 +63,12 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # depth): a depth-d cube is centred on the voxel chosen before it, half-width bounds_offset[d-1].
     # (16,16) is the default: 1.9 cm voxels at the last depth in a 30 cm cube.
     "grid-8-8": ("qattention.voxel_size=8",),  # 3.75 cm last voxels, the cheapest update
-    "grid-8-8-8": ("qattention.voxel_size=8", "qattention.depths=3",  # 1.9 cm again, from 3 cheap nets
-                   "qattention.bounds_offset=[0.15, 0.075]"),
+    "grid-8-8-8": GRID_8_8_8,  # 1.9 cm again, from 3 cheap nets
     "grid-16-16-16": ("qattention.depths=3", "qattention.bounds_offset=[0.15, 0.0375]"),  # 0.5 cm last voxels
     # Cameras fused into one grid (the paper adds wrist and shoulder views where the front one is occluded).
     "front-wrist": ("sim.cameras=[front, wrist]",),
     "four-cameras": ("sim.cameras=[front, left_shoulder, right_shoulder, wrist]",),
-    "front-wrist-grid-8-8-8": ("sim.cameras=[front, wrist]", "qattention.voxel_size=8", "qattention.depths=3",
-                               "qattention.bounds_offset=[0.15, 0.075]"),  # lift_lid's ladder entry
+    "front-wrist-grid-8-8-8": ("sim.cameras=[front, wrist]", *GRID_8_8_8),  # lift_lid's ladder entry
 }
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import learning  # bench/learning.py: runs, curves, thresholds
+from ablation import LEVERS  # bench/ablation.py: the levers, one of them lift_lid's entry
 
 TAG = "ladder"
 HEADLINE = 0.8  #: every rung is also timed to this rate, so the tasks compare in one column
@@ -36,8 +37,7 @@ HEADLINE = 0.8  #: every rung is also timed to this rate, so the tasks compare i
 
 #: lift_lid's named entry: the wrist camera fused with the front one (as the paper adds views where
 #: the front camera sees too little), and the (8,8,8) grid (bench/ablation.py's grid-8-8-8 lever).
-LIFT_LID_ENTRY = ("sim.cameras=[front, wrist]", "qattention.voxel_size=8", "qattention.depths=3",
-                  "qattention.bounds_offset=[0.15, 0.075]")
+LIFT_LID_ENTRY = LEVERS["front-wrist-grid-8-8-8"]
 
 
 @dataclass(frozen=True)
