@@ -21,6 +21,7 @@ last waypoint ends the demo, so it cannot be a via-point.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Iterable
@@ -29,11 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from actors.demos.mcap_io import Demo
-from actors.robot.interface import RobotArm
+from actors.robot.interface import RobotArm, return_home
 from protocol.observation import Observation
 
 TOP_DOWN = (1.0, 0.0, 0.0, 0.0)
 WAYPOINT_SYNTAX = "x y z [qx qy qz qw] open|close [via]"
+
+log = logging.getLogger("robot.demos")
 
 
 @dataclass
@@ -129,6 +132,8 @@ def record_robot_demo(arm: RobotArm, waypoints: list[Waypoint], task: str, seed:
             result = arm.move_to(waypoint.pose, waypoint.gripper_open)
             recorder.record(False)
             if not result.reached:
+                log.warning("demo of seed %d: waypoint %d %s (%s %s)", seed, len(ends) + 1, result.status,
+                            result.reason, result.detail)
                 break
             ends.append(recorder.snap())  # the arm stands still here
     finally:
@@ -170,7 +175,9 @@ def record_demos(config, waypoints: list[Waypoint], episodes: int, out_dir, ask=
         scripted = ReachOperator(sim, OperatorChannel()) if robot.scripted_operator else None
         seed = len(list(out.glob("*.mcap")))
         while len(written) < episodes:
-            arm.move_to(np.asarray(robot.home), gripper_open=True)
+            home = return_home(arm, np.asarray(robot.home))
+            if not home.reached:
+                raise RuntimeError(f"the arm cannot reach its home pose: {home.reason} {home.detail}")
             if scripted is None:
                 ask(f"demo {len(written) + 1}/{episodes}: set the scene up, then press Enter ")
             plan = waypoints if scripted is None else scripted.demonstration(np.random.default_rng(seed))

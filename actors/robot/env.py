@@ -22,7 +22,7 @@ import numpy as np
 from actors.actor_loop import stamp_scene_bounds
 from actors.robot.config import RobotConfig
 from actors.robot.demos import TOP_DOWN, Waypoint
-from actors.robot.interface import RobotArm
+from actors.robot.interface import RobotArm, return_home
 from actors.robot.operator import OperatorChannel
 from actors.sim.env import SUCCESS_REWARD, StepResult
 from protocol.messages import OperatorAction
@@ -61,13 +61,9 @@ class RobotEnv:
         """Arm home, then (the operator's) "reset done"; raises OperatorStopped if stopped meanwhile."""
         self.seed = 0 if seed is None else int(seed)
         self._wait_resumed()
-        home = self.arm.move_to(np.asarray(self.config.home), gripper_open=True)
-        if not home.reached:  # an arm error, or a posture Cartesian moves cannot leave: clear it, unwind, again
-            self.arm.recover()
-            self.arm.unwind()
-            home = self.arm.move_to(np.asarray(self.config.home), gripper_open=True)
-            if not home.reached:
-                raise OperatorStopped(f"cannot reach the home pose: {home.reason} {home.detail}")
+        home = return_home(self.arm, np.asarray(self.config.home))
+        if not home.reached:
+            raise OperatorStopped(f"cannot reach the home pose: {home.reason} {home.detail}")
         self.channel.discard((VERDICTS | {OperatorAction.RESET_DONE}) if self.scripted else VERDICTS)
         if self.scripted is not None:
             self.scripted.before_reset(np.random.default_rng(self.seed))

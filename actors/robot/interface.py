@@ -67,3 +67,18 @@ class RobotArm(Protocol):
 
     def disconnect(self) -> None:
         """Release the arm; safe to call twice."""
+
+
+def return_home(arm: RobotArm, home: np.ndarray) -> MoveResult:
+    """Move to ``home`` (gripper open); on failure clear the error, unwind in joint space and try once more.
+
+    A Cartesian move can fail for reasons one recovery fixes (an arm error left by the last
+    motion, a trajectory the arm's generator rejects from a twisted posture); a second failure
+    is returned for the caller to act on.
+    """
+    result = arm.move_to(np.asarray(home, dtype=float), gripper_open=True)
+    if not result.reached:
+        arm.recover()
+        arm.unwind()
+        result = arm.move_to(np.asarray(home, dtype=float), gripper_open=True)
+    return result
