@@ -7,6 +7,7 @@ and hands finished episodes to the outbox, which delivers them at least once.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 import zlib
@@ -16,19 +17,17 @@ from typing import Callable
 import numpy as np
 import torch
 
-from actors.config import ActorConfig
-from actors.outbox import Outbox
-from actors.weights import WeightsFollower
+from actors.environment import Env
+from actors.role_loop import ActingSetup, EpisodeStats, RoleLinks, first_episode_id
 from protocol.episode import Episode, stack_observations
-from protocol.fabric import open_session
-from protocol.heartbeat import Heartbeat
 from protocol.messages import WeightsUpdate
 from protocol.observation import Observation
 from protocol.role import RoleContext
+from protocol.transition import pad_act_labels, stamp_scene_bounds
+from protocol.weights_follower import WeightsFollower
 from qattention.agent import C2FARM
 from qattention.batch import ObservationBatch
 from qattention.config import QAttentionConfig
-from qattention.digest import network_digest
 
 log = logging.getLogger("actor")
 
@@ -53,7 +52,7 @@ class Rollout:
         return float(sum(self.rewards))
 
 
-def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, top_k: int = 0) -> Rollout | None:
+def rollout(env: Env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, top_k: int = 0) -> Rollout | None:
     """Play one episode: observe, choose a next-best pose, let the control agent execute it.
 
     ``top_k`` > 1 lets an unreachable choice give way to the best reachable one of the top-K.
@@ -87,35 +86,10 @@ def rollout(env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, to
             result.unreachable_reason = step.info.get("reason", "") if step.unreachable else ""
             return result
     pad_act_labels(result.observations, agent.config.depths)
-    # Out of decisions: the reference treats a timeout as terminal too (c2farm_spec §10.5).
+    # Out of decisions: the authors' code treats a timeout as terminal too (no bootstrapping past it).
     result.terminals[-1] = True
     result.timeout, result.reason = True, "timeout"
     return result
-
-
-def stamp_scene_bounds(observations: list[Observation], bounds) -> None:
-    """Let every observation carry the depth-0 box it was taken for (``extra_scene_bounds`` on the
-    wire), unless it already does: the learner then voxelises each sample in its own box."""
-    box = np.asarray(bounds, dtype=np.float32).reshape(6)
-    for obs in observations:
-        obs.extras.setdefault("scene_bounds", box)
-
-
-def pad_act_labels(observations: list[Observation], depths: int) -> None:
-    """Give observations without act-time labels (the final one, demo frames) zero labels,
-    so every episode in a replay carries the same arrays; the learner ignores them there."""
-    blank = act_label_blanks(depths)
-    for obs in observations:
-        for name, value in blank.items():
-            obs.extras.setdefault(name, value)
-
-
-def act_label_blanks(depths: int) -> dict[str, np.ndarray]:
-    return {
-        "voxel_indices": np.zeros((depths, 3), np.int64),
-        "attention_coordinates": np.zeros((depths, 3), np.float32),
-        "rot_grip_indices": np.zeros(4, np.int64),
-    }
 
 
 def to_episode(r: Rollout, actor_id: str, episode_id: int, task: str, seed: int, version: int) -> Episode:
@@ -183,34 +157,26 @@ class ActingPolicy:
             log.warning("no weights after %.0f s: acting with the initial random network", timeout_s)
 
 
-def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleContext) -> int:
+def run(setup: ActingSetup, ctx: RoleContext) -> int:
     """Collect episodes until stopped (or ``max_episodes``)."""
-    from actors.sim import PandaEnv  # the heavy simulator import stays out of the module's import
+    from actors.panda_env import PandaEnv  # the heavy simulator import stays out of the module's import
 
+    config, sim_config = setup.actor, setup.sim
     torch.set_num_threads(max(1, config.torch_threads))
     torch.manual_seed(ctx.seed + zlib.crc32(ctx.instance.encode()))
-    qconfig = qconfig.replace(epsilon=config.epsilon)
-    env = PandaEnv(sim_config)
-    session = open_session(ctx.fabric)
-    follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
-    policy = ActingPolicy(qconfig, follower, epsilon=config.epsilon_at)
-    outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s, config.outbox_wait_s,
-                    stop=ctx.stop)
-    stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0, "reach_checks": 0, "reach_replaced": 0}
-    # Episode ids must grow across restarts of this actor, or the replay would drop new episodes
-    # as duplicates: start from the clock in milliseconds (an episode takes far longer than 1 ms).
-    first_id = int(time.time() * 1000)
+    qconfig = setup.network.replace(epsilon=config.epsilon)
+    stats = EpisodeStats()
+    first_id = first_episode_id()
+    with contextlib.closing(PandaEnv(sim_config)) as env, RoleLinks(ctx, qconfig, outbox=config) as links:
+        follower, outbox = links.follower, links.outbox
+        policy = ActingPolicy(qconfig, follower, epsilon=config.epsilon_at)
 
-    def counters() -> dict[str, float]:
-        return {**stats, **outbox.counters, "outbox_pending": outbox.pending, "weights_version": policy.version,
-                "epsilon": policy.agent.config.epsilon,
-                **follower.counters(), "weights_latency_s": follower.latency_s,
-                "success_rate": stats["successes"] / max(1, stats["episodes"]),
-                "unreachable_rate": stats["unreachable"] / max(1, stats["episodes"])}
+        def counters() -> dict[str, float]:
+            return {**stats.as_dict(), **outbox.counters, "outbox_pending": outbox.pending,
+                    "weights_version": policy.version, "epsilon": policy.agent.config.epsilon,
+                    **follower.counters(), "weights_latency_s": follower.latency_s}
 
-    heartbeat = Heartbeat(session, ctx.run_id, "actor", ctx.instance, counters=counters,
-                          info=lambda: {"task": sim_config.task})
-    try:
+        links.beat("actor", counters, info=lambda: {"task": sim_config.task})
         policy.wait_for_first(config.weights_wait_s, ctx.stop)
         n = 0
         while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
@@ -226,20 +192,7 @@ def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleCon
             outbox.send(to_episode(r, ctx.instance, episode_id, sim_config.task, seed, policy.version))
             outbox.resend_due()
             n += 1
-            stats["episodes"] += 1
-            stats["env_steps"] += len(r.actions)
-            stats["successes"] += int(r.success)
-            stats["unreachable"] += int(r.reason == "unreachable")
-            if r.unreachable_reason:
-                key = f"unreachable_{r.unreachable_reason}"
-                stats[key] = stats.get(key, 0) + 1
-            stats["reach_checks"] += r.reach_checks
-            stats["reach_replaced"] += r.reach_replaced
-        outbox.flush(timeout_s=2.0)  # inside the launcher's grace period; what is still unacknowledged after this is lost
-    finally:
-        heartbeat.close()
-        outbox.close()
-        follower.close()
-        session.close()
-        env.close()
+            stats.add(r)
+        # inside the launcher's grace period; what is still unacknowledged after this is lost
+        outbox.flush(timeout_s=2.0)
     return 0

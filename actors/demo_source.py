@@ -1,7 +1,7 @@
 """Demonstrations into the replay: a demo source is just another actor.
 
 Each demo file becomes keyframe-to-keyframe episodes (the operator's keyframes, or keyframe
-discovery, + demo augmentation, c2farm_spec §6.1-6.2), published through the same outbox and protocol as
+discovery, + demo augmentation, as the authors' ARM code does), published through the same outbox and protocol as
 live episodes, flagged ``is_demo``. Episode ids are derived from the file order, so running
 the source again (after a crash or a replay restart) stores nothing twice.
 """
@@ -9,20 +9,22 @@ the source again (after a crash or a replay restart) stores nothing twice.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from actors.actor_loop import pad_act_labels, stamp_scene_bounds
 from actors.config import ActorConfig
 from actors.demos.augmentation import demo_to_transitions
 from actors.demos.keyframes import demo_keyframes
-from actors.demos.mcap_io import load_demo
-from actors.outbox import Outbox
+from actors.sim.task_specs import task_spec
 from protocol.episode import Episode, stack_observations
+from protocol.episode_file import load_demo
+from protocol.episode_outbox import Outbox
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
 from protocol.role import RoleContext
+from protocol.transition import pad_act_labels, stamp_scene_bounds
 
 log = logging.getLogger("demos")
 
@@ -66,15 +68,25 @@ def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10,
 
 def task_bounds(task: str) -> tuple[float, ...]:
     """The depth-0 box of a simulated task."""
-    from actors.sim.tasks import make_task
-
-    return tuple(make_task(task).scene_bounds)
+    return tuple(task_spec(task).scene_bounds)
 
 
-def run(demo_dir: Path, config: ActorConfig, ctx: RoleContext, every_n: int = 10, limit: int = 0,
-        depths: int = 2) -> int:
-    """Publish every demo in ``demo_dir`` (the first ``limit`` if set) and wait for the acks."""
-    files = sorted(Path(demo_dir).glob("*.mcap"))[: limit or None]
+@dataclass
+class DemoSourceSetup:
+    """What the demo source role is told (``run(setup, ctx)``)."""
+
+    directory: Path  #: the demo files (*.mcap) to publish
+    actor: ActorConfig  #: outbox settings, and whether episodes carry their depth-0 box
+    every_n: int = 10  #: demo augmentation: an episode from every n-th frame to its next keyframe
+    limit: int = 0  #: publish only the first ``limit`` demos (0: all)
+    depths: int = 2  #: the cascade's depths, for the act-time labels of each keyframe
+
+
+def run(setup: DemoSourceSetup, ctx: RoleContext) -> int:
+    """Publish every demo in ``setup.directory`` (the first ``limit`` if set) and wait for the acks."""
+    config, every_n, depths = setup.actor, setup.every_n, setup.depths
+    demo_dir = setup.directory
+    files = sorted(Path(demo_dir).glob("*.mcap"))[: setup.limit or None]
     if not files:
         log.error("no demo files (*.mcap) in %s", demo_dir)
         return 1

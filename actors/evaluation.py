@@ -9,6 +9,7 @@ why it ended), and the first decision of the first episode as a Q-attention snap
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import logging
 import time
@@ -20,12 +21,8 @@ import torch
 
 from actors.actor_loop import ActingPolicy, Rollout, rollout
 from actors.config import ActorConfig
-from actors.weights import WeightsFollower
-from protocol.fabric import open_session
-from protocol.heartbeat import Heartbeat
+from actors.role_loop import ActingSetup, RoleLinks
 from protocol.role import RoleContext
-from qattention.config import QAttentionConfig
-from qattention.digest import network_digest
 
 log = logging.getLogger("eval")
 
@@ -77,7 +74,7 @@ def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras, record_dir
         if i == 0 and on_first is not None:
             on_first(r)
         if record_dir is not None:
-            from actors.demos.mcap_io import write_episode_mcap
+            from protocol.episode_file import write_episode_mcap
 
             write_episode_mcap(record_dir / f"v{policy.version:06d}-seed{config.eval_seed + i}.mcap",
                                r.observations, task=env.task_name, seed=config.eval_seed + i, success=r.success,
@@ -85,73 +82,68 @@ def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras, record_dir
     return successes / done, returns / done, unreachable / done, done
 
 
-def run(config: ActorConfig, sim_config, qconfig: QAttentionConfig, ctx: RoleContext) -> int:
+def run(setup: ActingSetup, ctx: RoleContext) -> int:
     """Evaluate each new weights version (at most one every ``eval_every_versions``) until stopped."""
-    from actors.sim import PandaEnv
+    from actors.panda_env import PandaEnv
 
+    config, sim_config, qconfig = setup.actor, setup.sim, setup.network
     torch.set_num_threads(max(1, config.torch_threads))
-    env = PandaEnv(sim_config)
-    session = open_session(ctx.fabric)
-    follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
-    policy = ActingPolicy(qconfig.replace(epsilon=0.0), follower)
     latest: EvalResult | None = None
     csv_path = ctx.run_dir / "metrics" / "eval.csv"
     csv_path.parent.mkdir(parents=True, exist_ok=True)
     board = _tensorboard(ctx.run_dir / "tensorboard") if config.eval_tensorboard else None
+    evaluations = evaluated_version = 0
+    with contextlib.closing(PandaEnv(sim_config)) as env, RoleLinks(ctx, qconfig) as links:
+        follower = links.follower
+        policy = ActingPolicy(qconfig.replace(epsilon=0.0), follower)
 
-    evaluations = 0
+        def counters() -> dict[str, float]:
+            return {"evaluations": evaluations, **follower.counters(), **(latest.counters() if latest else {})}
 
-    def counters() -> dict[str, float]:
-        return {"evaluations": evaluations, **follower.counters(), **(latest.counters() if latest else {})}
-
-    heartbeat = Heartbeat(session, ctx.run_id, "eval", ctx.instance, counters=counters,
-                          info=lambda: {"task": sim_config.task})
-    evaluated_version = 0
-    try:
-        while not ctx.stop.is_set():
-            follower.fetch_latest(timeout_s=2.0)
-            update = follower.newer()
-            if update is not None and update.version < evaluated_version:
-                evaluated_version = 0  # resynced below a version the learner never announced: start afresh
-            if update is None or (evaluated_version and update.version < evaluated_version + config.eval_every_versions):
-                ctx.stop.wait(2.0)
-                continue
-            if not follower.adopt(update, policy.agent.load_weights):
-                continue  # did not fit the networks (counted by the follower)
-            record = ctx.run_dir / "eval" if config.record_eval else None
-            first: list[Rollout] = []
-            result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append)
-            if result is None:
-                break  # stopped mid-evaluation
-            if first:
-                write_snapshot(ctx.run_dir / "eval", policy, first[0], env.task_name, config.eval_seed, update)
-            success, mean_return, unreachable, n = result
-            evaluated_version = update.version
-            evaluations += 1
-            latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return,
-                                unreachable)
-            append_eval_row(csv_path, latest)
+        heartbeat = links.beat("eval", counters, info=lambda: {"task": sim_config.task})
+        try:
+            while not ctx.stop.is_set():
+                follower.fetch_latest(timeout_s=2.0)
+                update = follower.newer()
+                if update is not None and update.version < evaluated_version:
+                    evaluated_version = 0  # resynced below a version the learner never announced: start afresh
+                if update is None or (evaluated_version
+                                      and update.version < evaluated_version + config.eval_every_versions):
+                    ctx.stop.wait(2.0)
+                    continue
+                if not follower.adopt(update, policy.agent.load_weights):
+                    continue  # did not fit the networks (counted by the follower)
+                record = ctx.run_dir / "eval" if config.record_eval else None
+                first: list[Rollout] = []
+                result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append)
+                if result is None:
+                    break  # stopped mid-evaluation
+                if first:
+                    write_snapshot(ctx.run_dir / "eval", policy, first[0], env.task_name, config.eval_seed, update)
+                success, mean_return, unreachable, n = result
+                evaluated_version = update.version
+                evaluations += 1
+                latest = EvalResult(update.version, update.learner_step, update.env_steps, n, success, mean_return,
+                                    unreachable)
+                append_eval_row(csv_path, latest)
+                if board is not None:
+                    for name, value in (("success_rate", success), ("mean_return", mean_return),
+                                        ("unreachable_rate", unreachable)):
+                        board.add_scalar(f"eval/{name}", value, update.learner_step)
+                    board.flush()
+                log.info("weights v%d (step %d, %d env steps): success %.0f%% over %d episodes",
+                         update.version, update.learner_step, update.env_steps, 100 * success, n)
+                heartbeat.publish()
+        finally:
             if board is not None:
-                for name, value in (("success_rate", success), ("mean_return", mean_return),
-                                    ("unreachable_rate", unreachable)):
-                    board.add_scalar(f"eval/{name}", value, update.learner_step)
-                board.flush()
-            log.info("weights v%d (step %d, %d env steps): success %.0f%% over %d episodes",
-                     update.version, update.learner_step, update.env_steps, 100 * success, n)
-            heartbeat.publish()
-    finally:
-        if board is not None:
-            board.close()
-        heartbeat.close()
-        follower.close()
-        session.close()
-        env.close()
+                board.close()
     return 0
 
 
 def write_snapshot(directory: Path, policy: ActingPolicy, first: Rollout, task: str, seed: int, update) -> None:
     """The first decision of ``first`` as ``qattention-latest.npz``; a failure is logged, never fatal."""
-    from actors.qattention_snapshot import FILENAME, compute_snapshot, save_snapshot
+    from actors.qattention_snapshot import compute_snapshot
+    from protocol.attention_snapshot import FILENAME, save_snapshot
 
     try:
         meta = {"weights_version": update.version, "learner_step": update.learner_step, "env_steps": update.env_steps,
@@ -174,7 +166,7 @@ def _tensorboard(directory: Path):
 
 
 def append_eval_row(path: Path, result: EvalResult) -> None:
-    """One evaluation as a row of ``metrics/eval.csv`` (the header first in a new file); the robot actor writes it too."""
+    """One evaluation as a row of ``metrics/eval.csv`` (header first in a new file); the robot actor writes it too."""
     new = not path.exists()
     with path.open("a", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=EVAL_FIELDS)

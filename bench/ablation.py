@@ -30,7 +30,8 @@ import sys
 from pathlib import Path
 from typing import Mapping, Optional, Sequence
 
-import learning  # bench/learning.py: runs, curves, thresholds
+import learning  # bench/learning.py: runs and their seeds
+from learning_curves import Curve, first_reaching, when_reached
 
 GRID_8_8_8 = ("qattention.voxel_size=8", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.075]")
 
@@ -91,7 +92,7 @@ def variant_args(args: argparse.Namespace, variant: str) -> argparse.Namespace:
     return parsed
 
 
-def seed_curves(args: argparse.Namespace, variant: str) -> dict[int, learning.Curve]:
+def seed_curves(args: argparse.Namespace, variant: str) -> dict[int, Curve]:
     """The variant's seeds that have evaluations (each run's eval.csv).
 
     Each curve's last point also gets the samples per insert the replay had reached by the
@@ -117,29 +118,33 @@ def achieved_samples_per_insert(run_dir: Path) -> Optional[float]:
         return None
 
 
-def slowest(curves: Sequence[learning.Curve], threshold: float) -> Optional[dict]:
+def slowest(curves: Sequence[Curve], threshold: float) -> Optional[dict]:
     """The latest first-reaching point over the seeds; None if any seed never got there."""
-    points = [learning.first_reaching(curve, threshold) for curve in curves]
+    points = [first_reaching(curve, threshold) for curve in curves]
     if not points or any(p is None for p in points):
         return None
     return max(points, key=lambda p: (p["minutes"], p["env_steps"]))
 
 
-def table(results: Mapping[str, Mapping[int, learning.Curve]], thresholds: Sequence[float]) -> str:
+def table(results: Mapping[str, Mapping[int, Curve]], thresholds: Sequence[float]) -> str:
     """Markdown: per variant, each seed's time to each threshold, then the slowest seed's."""
     header = (["variant", "seed"] + [f"first ≥ {100 * t:g} %" for t in thresholds]
               + ["final success", "evals", "samples/insert"])
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for variant, curves in results.items():
-        for seed, curve in sorted(curves.items()):
-            cells = [variant, str(seed)] + [learning._reached(learning.first_reaching(curve, t)) for t in thresholds]
+    for variant, by_seed in results.items():
+        for seed, curve in sorted(by_seed.items()):
+            cells = [variant, str(seed)] + [when_reached(first_reaching(curve, t)) for t in thresholds]
             ratio = curve[-1].get("samples_per_insert")
-            cells += [f"{100 * curve[-1]['success_rate']:.0f} %", str(len(curve)), "" if ratio is None else f"{ratio:.2f}"]
+            cells += [
+                f"{100 * curve[-1]['success_rate']:.0f} %",
+                str(len(curve)),
+                "" if ratio is None else f"{ratio:.2f}",
+            ]
             lines.append("| " + " | ".join(cells) + " |")
-        if len(curves) > 1:
-            cells = [f"**{variant}**", "slowest"] + [learning._reached(slowest(list(curves.values()), t))
+        if len(by_seed) > 1:
+            cells = [f"**{variant}**", "slowest"] + [when_reached(slowest(list(by_seed.values()), t))
                                                       for t in thresholds]
-            worst_final = min(c[-1]["success_rate"] for c in curves.values())
+            worst_final = min(c[-1]["success_rate"] for c in by_seed.values())
             lines.append("| " + " | ".join(cells + [f"{100 * worst_final:.0f} %", "", ""]) + " |")
     return "\n".join(lines)
 
@@ -151,12 +156,12 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
     parser.add_argument("--seeds", type=int, default=3, help="seeds per variant")
     parser.add_argument("--first-seed", type=int, default=1, help="seed of the first run of each variant")
-    parser.add_argument("--variants", nargs="+", default=list(LEVERS), metavar="NAME", help="levers to compare (--list)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every run")
+    parser.add_argument(
+        "--variants", nargs="+", default=list(LEVERS), metavar="NAME", help="levers to compare (--list)"
+    )
     parser.add_argument("--thresholds", type=float, nargs="+", default=[0.5, 0.9], help="success rates to time")
     learning.add_stop_arguments(parser)
-    parser.add_argument("--runs-dir", default="runs", help="where runs live")
-    parser.add_argument("--results-dir", default="bench/results", help="where curves and the table go")
+    learning.add_place_arguments(parser)
     parser.add_argument("--summary", action="store_true", help="only read the runs and print the table")
     parser.add_argument("--list", action="store_true", help="print the levers and what each overrides")
     args = parser.parse_args(argv)
@@ -187,10 +192,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 if code:
                     failed.append(f"{variant} seed {seed}")
     results = {variant: seed_curves(args, variant) for variant in args.variants}
-    for variant, curves in results.items():  # each run wrote its own seed's aggregate: now every seed's
-        if curves and not args.summary:
+    for variant, by_seed in results.items():  # each run wrote its own seed's aggregate: now every seed's
+        if by_seed and not args.summary:
             parsed = variant_args(args, variant)
-            learning.write_results(parsed, curves, learning.combine(parsed, curves))
+            learning.write_results(parsed, by_seed, learning.combine(parsed, by_seed))
     text = table({v: c for v, c in results.items() if c}, args.thresholds)
     out = Path(args.results_dir) / f"ablation-{args.task}-{args.preset}.md"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,8 @@ import tempfile
 import time
 
 from actors.demos.generate import generate_demos, record_demo
-from actors.sim import TASKS, PandaEnv, SimConfig
+from actors.panda_env import PandaEnv
+from actors.sim import TASKS, SimConfig
 
 
 def main() -> None:
@@ -21,7 +22,10 @@ def main() -> None:
     ap.add_argument("--record-episodes", type=int, default=2, help="episodes per task recorded to MCAP (4 cameras)")
     ap.add_argument("--cameras", default="front,left_shoulder,right_shoulder,wrist", help="cameras when recording")
     args = ap.parse_args()
-    print("| task | demo success | seeds | s/episode (no cameras) | s/episode recorded (4 cams, MCAP) | frames/episode | MB/episode |")
+    print(
+        "| task | demo success | seeds | s/episode (no cameras) | s/episode recorded (4 cams, MCAP) "
+        "| frames/episode | MB/episode |"
+    )
     print("|---|---|---|---|---|---|---|")
     for task in args.tasks.split(","):
         env = PandaEnv(SimConfig(task=task, cameras=()))
@@ -42,8 +46,12 @@ def main() -> None:
                                       progress=False)
                 rec = f"{summ.seconds / args.record_episodes:.1f}"
                 mb = f"{summ.bytes / args.record_episodes / 1e6:.1f}"
-        print(f"| {task} | {ok}/{args.seeds} ({100 * ok / args.seeds:.0f}%) | 0..{args.seeds - 1} | {per_ep:.2f} | {rec} | "
-              f"{frames / args.seeds:.0f} | {mb} |", flush=True)
+        print(
+            f"| {task} | {ok}/{args.seeds} ({100 * ok / args.seeds:.0f}%) | 0..{args.seeds - 1} | {per_ep:.2f} "
+            f"| {rec} | "
+            f"{frames / args.seeds:.0f} | {mb} |",
+            flush=True,
+        )
         if failed:
             print(f"<!-- {task} failed seeds: {failed} -->", flush=True)
 

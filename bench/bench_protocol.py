@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import socket
 import statistics
 import subprocess
 import sys
@@ -26,9 +27,9 @@ import zenoh
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
 
-from conftest import get_free_port, make_episode  # noqa: E402  (the tests' episode factory)
+from synthetic_episodes import synthetic_episode  # noqa: E402  (bench/synthetic_episodes.py, the tests' too)
+
 from protocol import Episode, decode, encode, keys  # noqa: E402
 from protocol.fabric import FabricConfig, open_session  # noqa: E402
 from protocol.observation import CAMERA_NAMES  # noqa: E402
@@ -70,10 +71,16 @@ token.undeclare(); sub.undeclare(); session.close()
 """
 
 
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def bench_codec(repeats: int) -> list[dict]:
     rows = []
     for name, cameras in SIZES.items():
-        episode = make_episode(cameras=cameras, steps=10, side=128)
+        episode = synthetic_episode(cameras=cameras, steps=10, size=128)
         data = encode(episode)
         enc = [_timed(lambda: encode(episode)) for _ in range(repeats)]
         dec = [_timed(lambda: decode(data, expect=Episode)) for _ in range(repeats)]
@@ -98,7 +105,7 @@ def _timed(fn) -> float:
 
 
 def bench_zenoh(shm: bool, count: dict[str, int], warmup: int = 5) -> list[dict]:
-    endpoint = f"tcp/127.0.0.1:{get_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     flag = "1" if shm else "0"
     env_cwd = dict(cwd=REPO, text=True)
     router = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint, flag], stdin=subprocess.PIPE,
@@ -110,7 +117,7 @@ def bench_zenoh(shm: bool, count: dict[str, int], warmup: int = 5) -> list[dict]
         try:
             for name, cameras in SIZES.items():
                 n = count[name]
-                data = encode(make_episode(cameras=cameras, steps=10, side=128))
+                data = encode(synthetic_episode(cameras=cameras, steps=10, size=128))
                 sub = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, endpoint, flag, str(n + warmup)],
                                        stdout=subprocess.PIPE, **env_cwd)
                 try:
@@ -187,7 +194,9 @@ def main() -> None:
     print(f"machine: {cpu}, Python {platform.python_version()}, zenoh {metadata.version('eclipse-zenoh')}, "
           f"numpy {metadata.version('numpy')}, safetensors {metadata.version('safetensors')}\n")
     print("Codec (median of %d):\n" % repeats)
-    print(table(bench_codec(repeats), ["episode", "MB", "encode MB/s", "decode+validate MB/s", "encode ms", "decode ms"]))
+    print(
+        table(bench_codec(repeats), ["episode", "MB", "encode MB/s", "decode+validate MB/s", "encode ms", "decode ms"])
+    )
     rows = bench_zenoh(True, count) + bench_zenoh(False, count)
     rows.sort(key=lambda r: (r["episode"], r["shm"] == "off"))
     print("\nZenoh loopback, client -> router -> client, subscriber decodes every episode:\n")

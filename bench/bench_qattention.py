@@ -26,9 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import torch  # noqa: E402
 
 from qattention import C2FARM, ObservationBatch, TransitionBatch, cpu_small, paper  # noqa: E402
-from qattention.voxelise import voxelise  # noqa: E402
 from qattention.crop import gather_points  # noqa: E402
 from qattention.synthetic import observation_arrays, transition_arrays  # noqa: E402
+from qattention.voxelise import voxelise  # noqa: E402
 
 
 def sync(device):
@@ -77,6 +77,7 @@ def time_grids(names, device, batch: int) -> None:
     """Acting latency and update time of the cpu-small cascade for each grid lever of bench/ablation.py."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from ablation import LEVERS
+
     from deploy.config_loader import parse_override
 
     data = TransitionBatch.from_arrays(transition_arrays(batch, seed=batch), ("front",), device)

@@ -132,7 +132,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--roles", nargs="+", default=["router", "replay", "dashboard", "learner", "actor-0", "eval"])
     parser.add_argument("--stops", type=int, default=2, help="clean stops to time (the run resumes in between)")
-    parser.add_argument("--grace", type=float, default=20.0, help="launch.liveness_grace_s (default shorter than the config's, to keep the bench short)")
+    parser.add_argument(
+        "--grace",
+        type=float,
+        default=20.0,
+        help="launch.liveness_grace_s (default shorter than the config's, to keep the bench short)",
+    )
     parser.add_argument("--out", default=str(REPO / "bench" / "results" / "reliability.json"))
     args = parser.parse_args()
     results: dict = {"faults": [], "stops": []}
@@ -160,9 +165,14 @@ def main() -> None:
                     os.killpg(run.proc.pid, signal.SIGKILL)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
-    print("| role | signal | launcher sees it gone | launcher restarts it | dashboard shows gone | dashboard shows back |")
+    print(
+        "| role | signal | launcher sees it gone | launcher restarts it | dashboard shows gone | dashboard shows back |"
+    )
     print("|---|---|---|---|---|---|")
-    fmt = lambda v: "-" if v is None else f"{v:.1f} s"
+
+    def fmt(v) -> str:
+        return "-" if v is None else f"{v:.1f} s"
+
     for r in results["faults"]:
         if "error" in r:
             print(f"| {r['role']} | error: {r['error']} |")

@@ -29,15 +29,16 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from synthetic_episodes import synthetic_episode  # noqa: E402  (bench/synthetic_episodes.py)
+
 from protocol import keys  # noqa: E402
 from protocol.fabric import FabricConfig, open_session  # noqa: E402
 from protocol.messages import Status, decode, encode  # noqa: E402
 from protocol.observation import CAMERA_NAMES  # noqa: E402
-from replay_server.checkpoint import load_checkpoint, write_checkpoint  # noqa: E402
 from protocol.sample_wire import ReplayClient  # noqa: E402
+from replay_server.checkpoint_files import load_checkpoint, write_checkpoint  # noqa: E402
 from replay_server.config import ReplayConfig  # noqa: E402
 from replay_server.storage import EpisodeStore  # noqa: E402
-from replay_server.testing import synthetic_episode  # noqa: E402
 
 ROWS: list[tuple[str, str, str]] = []
 
@@ -95,7 +96,7 @@ class Server:
         procs = []
         with tempfile.TemporaryDirectory() as d:
             for i in range(n):
-                cmd = [sys.executable, "-m", "replay_server.testing", "actor", "--connect", self.endpoint,
+                cmd = [sys.executable, str(ROOT / "bench" / "fake_actor.py"), "--connect", self.endpoint,
                        "--run-id", self.run_id, "--actor-id", f"{tag}-{i}", "--episodes", str(episodes),
                        "--size", "128", "--cameras", str(cameras), "--template", "--outbox", "8",
                        "--ack-timeout", "30", "--deadline", "600", "--out", f"{d}/{i}.json"]
@@ -229,7 +230,7 @@ def bench_in_process(tmp: Path, quick: bool) -> None:
             restored = EpisodeStore(cfg)
             restored.restore(loaded)
             t_load = time.perf_counter() - t0
-            assert np.array_equal(restored.tree.leaves(), store.tree.leaves())
+            assert np.array_equal(restored.priorities.tree.leaves(), store.priorities.tree.leaves())
             row(f"checkpoint write / restore (verified), compression={comp}",
                 f"{res.bytes / 1e6 / res.seconds:.0f} / {res.bytes / 1e6 / t_load:.0f} MB/s",
                 f"({res.bytes / 1e6:.0f} MB incl. fsync and CRC; snapshot under lock {pause * 1e3:.1f} ms)")
@@ -248,7 +249,7 @@ def main() -> int:
         bench_ingest_and_service(tmp, a.quick)
     cpu = "unknown CPU"
     try:
-        cpu = [l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")][0]
+        cpu = [line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")][0]
     except Exception:
         pass
     print(f"\n{os.cpu_count()} cores, {cpu}, Python {sys.version.split()[0]}\n")

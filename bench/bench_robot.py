@@ -31,7 +31,11 @@ DOWN = np.array([1.0, 0.0, 0.0, 0.0])
 
 def stats(values) -> dict[str, float]:
     v = np.asarray([x for x in values if np.isfinite(x)], dtype=float)
-    return {"n": int(v.size), "median": round(float(np.median(v)), 3), "max": round(float(v.max()), 3)} if v.size else {"n": 0}
+    return (
+        {"n": int(v.size), "median": round(float(np.median(v)), 3), "max": round(float(v.max()), 3)}
+        if v.size
+        else {"n": 0}
+    )
 
 
 def decide(arm: FrankaArm, n: int, seed: int) -> dict:

@@ -16,8 +16,8 @@ from actors.control.collision import CollisionWorld
 from actors.control.ik import IKSolver
 from actors.control.planner import MotionPlanner
 from actors.demos.generate import record_demo
-from actors.sim import TASKS, PandaEnv, SimConfig
-from actors.sim import shapes
+from actors.panda_env import PandaEnv
+from actors.sim import TASKS, SimConfig, shapes
 from actors.sim.scene import HOME
 from actors.sim.tasks.base import top_down
 
@@ -78,7 +78,9 @@ def planner_comparison(trials: int = 5) -> None:
             if plan is not None:
                 ok += 1
                 verts.append(len(plan.path))
-        print(f"| {name} | {ok}/{trials} | {1e3 * np.mean(times):.0f} | {np.mean(verts) if verts else float('nan'):.1f} |")
+        print(
+            f"| {name} | {ok}/{trials} | {1e3 * np.mean(times):.0f} | {np.mean(verts) if verts else float('nan'):.1f} |"
+        )
     world.close()
 
 
@@ -97,9 +99,12 @@ def main() -> None:
         d = record_demo(env, 0)
         fps = len(d.observations) / (time.perf_counter() - t)
         env.close()
-        print(f"| {task} | {r1:.1f} | {r4:.1f} | {c['ik']:.1f} | {c['plan']:.1f} | {c['trajectory']:.2f} | "
-              f"{c['execute']:.1f} | {c['gripper']:.1f} | {100 * c['success']:.0f}% | {100 * c['ompl']:.0f}% | {fps:.0f} |",
-              flush=True)
+        print(
+            f"| {task} | {r1:.1f} | {r4:.1f} | {c['ik']:.1f} | {c['plan']:.1f} | {c['trajectory']:.2f} | "
+            f"{c['execute']:.1f} | {c['gripper']:.1f} | {100 * c['success']:.0f}% | {100 * c['ompl']:.0f}% "
+            f"| {fps:.0f} |",
+            flush=True,
+        )
     planner_comparison()
 
 

@@ -27,7 +27,8 @@ import time
 def time_decisions(task: str, decisions: int) -> None:
     import torch
 
-    from actors.sim import PandaEnv, SimConfig
+    from actors.panda_env import PandaEnv
+    from actors.sim import SimConfig
     from qattention.agent import C2FARM
     from qattention.batch import ObservationBatch
     from qattention.config import cpu_small, paper
@@ -74,7 +75,10 @@ def measure_system(actors: list[int], minutes: float, preset: str, task: str) ->
     import httpx
 
     print(f"system on {task}, preset {preset}, {minutes:g} min per row (first minute discarded)")
-    print("| actors | env steps/s total | env steps/s per actor | updates/s | samples/s | weights latency ms (median, max) |")
+    print(
+        "| actors | env steps/s total | env steps/s per actor | updates/s | samples/s "
+        "| weights latency ms (median, max) |"
+    )
     print("|---|---|---|---|---|---|")
     for n in actors:
         port = _free_port()

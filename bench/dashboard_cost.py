@@ -27,7 +27,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import httpx
 import psutil
@@ -152,7 +152,9 @@ def main() -> None:
     parser.add_argument("--preset", default="cpu-small")
     parser.add_argument("--window", type=float, default=120.0, help="seconds per window")
     parser.add_argument("--rounds", type=int, default=3, help="idle+polled pairs")
-    parser.add_argument("--warmup", type=float, default=180.0, help="seconds before the first window (demos, first updates)")
+    parser.add_argument(
+        "--warmup", type=float, default=180.0, help="seconds before the first window (demos, first updates)"
+    )
     parser.add_argument("--dashboard", default="http://127.0.0.1:8080/")
     parser.add_argument("--run-id", default=f"dashcost-{int(time.time())}")
     parser.add_argument("--set", action="append", default=[], help="extra launch settings (key=value)")
@@ -174,8 +176,12 @@ def main() -> None:
             for condition in order:
                 w = measure(args.dashboard, dashboard, poller, condition, args.window)
                 windows.append(w)
-                print(f"round {r + 1} {condition:6s}: {w.updates_per_s:.3f} updates/s, {w.env_steps_per_s:.3f} env steps/s, "
-                      f"dashboard {100 * w.dashboard_cpu_s / w.seconds:.1f} % CPU, {w.requests} requests", flush=True)
+                print(
+                    f"round {r + 1} {condition:6s}: {w.updates_per_s:.3f} updates/s, "
+                    f"{w.env_steps_per_s:.3f} env steps/s, "
+                    f"dashboard {100 * w.dashboard_cpu_s / w.seconds:.1f} % CPU, {w.requests} requests",
+                    flush=True,
+                )
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         try:
@@ -190,8 +196,12 @@ def main() -> None:
         if not ws:
             continue
         mean = lambda f: statistics.mean(f(w) for w in ws)  # noqa: E731
-        print(f"| {condition} | {len(ws)} | {mean(lambda w: w.updates_per_s):.3f} | {mean(lambda w: w.env_steps_per_s):.3f} "
-              f"| {100 * mean(lambda w: w.dashboard_cpu_s / w.seconds):.1f} % | {mean(lambda w: w.requests / w.seconds):.2f} |")
+        print(
+            f"| {condition} | {len(ws)} | {mean(lambda w: w.updates_per_s):.3f} "
+            f"| {mean(lambda w: w.env_steps_per_s):.3f} "
+            f"| {100 * mean(lambda w: w.dashboard_cpu_s / w.seconds):.1f} % "
+            f"| {mean(lambda w: w.requests / w.seconds):.2f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -103,7 +103,7 @@ def main() -> int:
 
     import torch
 
-    from actors.sim import PandaEnv
+    from actors.panda_env import PandaEnv
     from deploy.config import load_config
     from deploy.roles import network_config
     from qattention.agent import C2FARM
@@ -128,7 +128,10 @@ def main() -> int:
     print(f"{args.task}: {len(used)} demos (seeds {used}), {len(rows)} keyframe transitions, "
           f"{len(tests)} unseen scenes, recorded in {time.perf_counter() - t0:.0f} s; "
           f"preset {args.preset}, batch {args.batch}, torch threads {torch.get_num_threads()}")
-    print(f"constant yaw (the unseen scenes' median) scores a median yaw error mod {args.yaw_symmetry:g} of {const:.1f} deg")
+    print(
+        f"constant yaw (the unseen scenes' median) scores a median yaw error mod {args.yaw_symmetry:g} "
+        f"of {const:.1f} deg"
+    )
     print("| yaw augmentation (deg) | updates | s/update | x-y error (cm, median) | yaw error (deg) | "
           f"yaw error mod {args.yaw_symmetry:g} (deg) | distinct greedy yaws |")
     print("|---|---|---|---|---|---|---|")

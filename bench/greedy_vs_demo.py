@@ -29,7 +29,7 @@ def main() -> int:
 
     import torch
 
-    from actors.sim import PandaEnv
+    from actors.panda_env import PandaEnv
     from deploy.config import load_config
     from deploy.roles import network_config
     from learner.checkpoint import load_latest

@@ -39,7 +39,15 @@ from protocol import keys  # noqa: E402
 from protocol.episode import Episode  # noqa: E402
 from protocol.fabric import FabricConfig, open_session  # noqa: E402
 from protocol.messages import (  # noqa: E402
-    AckStatus, EpisodeAck, PriorityUpdate, SampleRequest, Status, WeightsUpdate, decode, encode, encode_unchecked,
+    AckStatus,
+    EpisodeAck,
+    PriorityUpdate,
+    SampleRequest,
+    Status,
+    WeightsUpdate,
+    decode,
+    encode,
+    encode_unchecked,
 )
 
 #: (target, kind) of every message the flood sends, one of each per round.
@@ -142,7 +150,9 @@ def _zmq(kind: str, n: int, rng: random.Random) -> list[bytes]:
     if kind == "huge_batch":
         return [encode(SampleRequest(n + 1, 1000, 100))]  # the wire allows 1024; the replay serves at most 512
     if kind == "nan_priorities":
-        return [encode_unchecked(PriorityUpdate(np.array([0, 1]), np.array([0, 1]), np.array([np.nan, 1.0], np.float32)))]
+        return [
+            encode_unchecked(PriorityUpdate(np.array([0, 1]), np.array([0, 1]), np.array([np.nan, 1.0], np.float32)))
+        ]
     raise ValueError(kind)
 
 

@@ -68,7 +68,7 @@ def run_task(config, episodes: int) -> dict[str, Counter]:
     from actors.demos.augmentation import keyframe_action
     from actors.demos.generate import record_demo
     from actors.demos.keyframes import demo_keyframes
-    from actors.sim import PandaEnv
+    from actors.panda_env import PandaEnv
     from deploy.roles import network_config
 
     qconfig = network_config(config)
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     args = parser.parse_args(argv)
 
-    from actors.sim.task_names import TASKS
+    from actors.sim.task_specs import TASKS
     from deploy.config import load_config
     from deploy.config_loader import parse_override
 

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
 
-import learning  # bench/learning.py: runs, curves, thresholds
+import learning  # bench/learning.py: the arguments every learning bench takes
+import learning_curves  # bench/learning_curves.py
 from ablation import LEVERS  # bench/ablation.py: the levers, one of them lift_lid's entry
 
 TAG = "ladder"
@@ -75,14 +76,14 @@ def learning_args(args: argparse.Namespace, rung: Rung, seed: int) -> list[str]:
     return argv
 
 
-def seed_curves(args: argparse.Namespace, task: str) -> dict[int, learning.Curve]:
+def seed_curves(args: argparse.Namespace, task: str) -> dict[int, learning_curves.Curve]:
     """The per-seed CSVs of this rung under the results dir (seeds in range only)."""
     stem = Path(args.results_dir) / f"{task}-{args.preset}-{TAG}"
     curves = {}
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         path = Path(f"{stem}-s{seed}.csv")
         if path.exists():
-            curves[seed] = learning.read_curve_csv(path)
+            curves[seed] = learning_curves.read_curve_csv(path)
     return curves
 
 
@@ -101,12 +102,12 @@ def _cells(point: Optional[dict]) -> list[str]:
     return [f"{point['minutes']:.1f}", str(point["env_steps"]), str(point["learner_step"])]
 
 
-def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning.Curve]) -> list[dict]:
+def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning_curves.Curve]) -> list[dict]:
     """One row per seed, the worst first: not reaching the bar, then the latest to reach it."""
     config = run_config(args, rung)
     rows = []
     for seed, curve in curves.items():
-        at_80, at_bar = learning.first_reaching(curve, HEADLINE), learning.first_reaching(curve, rung.bar)
+        at_80, at_bar = learning_curves.first_reaching(curve, HEADLINE), learning_curves.first_reaching(curve, rung.bar)
         rows.append({
             "task": rung.task, "seed": seed, "bar": rung.bar, "demos": config.demos.episodes,
             "cameras": "+".join(config.sim.cameras), "entry": " ".join(rung.overrides),
@@ -148,9 +149,9 @@ def table(rows_by_task: dict[str, list[dict]]) -> str:
     return "\n".join(lines)
 
 
-def plot(curves_by_task: dict[str, dict[int, learning.Curve]], out_png: Path) -> Path:
+def plot(curves_by_task: dict[str, dict[int, learning_curves.Curve]], out_png: Path) -> Path:
     """Every task's seeds against wall-clock minutes, one panel a task, its bar dashed."""
-    plt = learning._pyplot()
+    plt = learning_curves.pyplot()
     tasks = list(curves_by_task)
     cols = min(4, len(tasks))
     rows = (len(tasks) + cols - 1) // cols
@@ -159,7 +160,9 @@ def plot(curves_by_task: dict[str, dict[int, learning.Curve]], out_png: Path) ->
         ax.axis("off")
     for ax, task in zip(axes.flat, tasks):
         for seed, curve in sorted(curves_by_task[task].items()):
-            ax.plot([p["minutes"] for p in curve], [100 * p["success_rate"] for p in curve], lw=1.2, label=f"seed {seed}")
+            ax.plot(
+                [p["minutes"] for p in curve], [100 * p["success_rate"] for p in curve], lw=1.2, label=f"seed {seed}"
+            )
         ax.axhline(100 * RUNGS[task].bar, ls="--", color="grey", lw=1)
         ax.set_title(task, fontsize="medium")
         ax.set_ylim(-2, 102)
@@ -181,7 +184,7 @@ def write_results(args: argparse.Namespace) -> str:
     curves = {task: seed_curves(args, task) for task in args.tasks}
     rows = {task: seed_rows(args, RUNGS[task], c) for task, c in curves.items() if c}
     results = Path(args.results_dir)
-    learning.write_csv(results / "ladder.csv", [r for task_rows in rows.values() for r in task_rows], CSV_FIELDS)
+    learning_curves.write_csv(results / "ladder.csv", [r for task_rows in rows.values() for r in task_rows], CSV_FIELDS)
     text = table(rows)
     missing = [t for t in args.tasks if not curves[t]]
     note = f"\n\nNo seed has run yet: {', '.join(missing)}." if missing else ""
@@ -199,9 +202,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--first-seed", type=int, default=1, help="seed of the first run of each task")
     parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
     parser.add_argument("--stop-held", type=int, default=2, metavar="N", help="evaluations in a row at the bar to stop")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every run")
-    parser.add_argument("--runs-dir", default="runs", help="where runs live")
-    parser.add_argument("--results-dir", default="bench/results", help="where curves and the table go")
+    learning.add_place_arguments(parser)
     parser.add_argument("--summary", action="store_true", help="only read the per-seed CSVs and write the table")
     parser.add_argument("--list", action="store_true", help="print the rungs")
     args = parser.parse_args(argv)

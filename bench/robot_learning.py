@@ -13,7 +13,8 @@ learner, demo source and robot (no simulated actors or evaluator). A scripted op
 (``robot.scripted_operator``) moves the target before each episode and says "success" when the
 grasp frame is within 2 cm of it, and demonstrates it: one top-down move onto the target.
 With ``robot.evaluate`` the robot actor also plays the evaluator's greedy episodes (fixed
-seeds, so fixed targets) every ``actor.eval_every_versions`` weights versions, into ``runs/<id>/metrics/eval.csv``, the file bench/learning.py reads.
+seeds, so fixed targets) every ``actor.eval_every_versions`` weights versions, into ``runs/<id>/metrics/eval.csv``, the
+file bench/learning.py reads.
 
 Ports are picked free (router, replay's ZeroMQ, dashboard), so this runs beside another run.
 Budget bookkeeping, reading and plotting are bench/learning.py's (``runs/<id>/bench_budget.json``).
@@ -35,6 +36,8 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import learning  # bench/learning.py: budget, launcher supervision, curves, plots
+import learning_curves  # bench/learning_curves.py
+import run_budget  # bench/run_budget.py
 
 ROBOT_ROLES = "router,replay,dashboard,learner,robot"
 #: franky-sim with the MuJoCo stand-in camera and the scripted operator, for the demos and the run alike.
@@ -74,11 +77,36 @@ def launch_command(args: argparse.Namespace) -> list[str]:
     from deploy.endpoints import free_port
 
     roles = ROBOT_ROLES + (",demo_source" if args.demos else "")
-    return [sys.executable, "-m", "deploy.cli", "launch", "--preset", args.preset, *ROBOT_FLAGS,
-            "--run-id", args.run_id, "--roles", roles, "--router-port", "0", "--dashboard-port", str(args.dashboard_port),
-            "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{free_port()}", "--set", f"run.runs_dir={args.runs_dir}",
-            "--set", f"run.seed={args.seed}", "--set", "robot.evaluate=true",
-            "--set", f"demos.directory={demos_dir(args)}", "--set", f"demos.episodes={args.demos}", *user_sets(args)]
+    return [
+        sys.executable,
+        "-m",
+        "deploy.cli",
+        "launch",
+        "--preset",
+        args.preset,
+        *ROBOT_FLAGS,
+        "--run-id",
+        args.run_id,
+        "--roles",
+        roles,
+        "--router-port",
+        "0",
+        "--dashboard-port",
+        str(args.dashboard_port),
+        "--set",
+        f"replay.zmq_endpoint=tcp://127.0.0.1:{free_port()}",
+        "--set",
+        f"run.runs_dir={args.runs_dir}",
+        "--set",
+        f"run.seed={args.seed}",
+        "--set",
+        "robot.evaluate=true",
+        "--set",
+        f"demos.directory={demos_dir(args)}",
+        "--set",
+        f"demos.episodes={args.demos}",
+        *user_sets(args),
+    ]
 
 
 def results_stem(args: argparse.Namespace) -> str:
@@ -88,9 +116,13 @@ def results_stem(args: argparse.Namespace) -> str:
 def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock budget of the run, over all reruns")
-    parser.add_argument("--preset", default="robot", help="config preset in configs/ (robot: 3 demos, training from 16 transitions)")
+    parser.add_argument(
+        "--preset", default="robot", help="config preset in configs/ (robot: 3 demos, training from 16 transitions)"
+    )
     parser.add_argument("--seed", type=int, default=1, help="run.seed")
-    parser.add_argument("--demos", type=int, default=3, help="scripted demos recorded before the run (the paper: 3); 0 = none")
+    parser.add_argument(
+        "--demos", type=int, default=3, help="scripted demos recorded before the run (the paper: 3); 0 = none"
+    )
     parser.add_argument("--tag", default=None, help="names a variant in the run id and result files")
     parser.add_argument("--run-id", default=None, help="run id (default: learn-robot-reach-<preset>[-<tag>]-s<seed>)")
     parser.add_argument("--runs-dir", default="runs", help="where runs live")
@@ -107,7 +139,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
 def train(args: argparse.Namespace) -> bool:
     """The run's (remaining) budget; False if the launcher failed by itself."""
     run_dir = Path(args.runs_dir) / args.run_id
-    left = learning.load_budget(run_dir).remaining(args.minutes * 60)
+    left = run_budget.load_budget(run_dir).remaining(args.minutes * 60)
     if left <= 0:
         print(f"{args.run_id}: budget of {args.minutes:g} min already spent", flush=True)
         return True
@@ -116,33 +148,35 @@ def train(args: argparse.Namespace) -> bool:
         return False
     cmd = launch_command(args)
     print(f"{args.run_id}: {left / 60:.1f} of {args.minutes:g} min left\n+ {' '.join(cmd)}", flush=True)
-    code = learning.run_budgeted(cmd, run_dir, args.minutes * 60)
+    code = run_budget.run_budgeted(cmd, run_dir, args.minutes * 60)
     if code is not None:
         print(f"{args.run_id}: launcher exited by itself with code {code}", flush=True)
     return not code
 
 
-def write_results(args: argparse.Namespace) -> learning.Curve:
+def write_results(args: argparse.Namespace) -> learning_curves.Curve:
     """This seed's curve, then every seed's under the results dir combined (worst seed), as CSVs and a PNG.
 
     Seeds are combined from their per-seed CSVs (``<stem>-s<seed>.csv``), not from run
     directories, so seeds run in different sessions or on different machines still combine.
     """
     run_dir = Path(args.runs_dir) / args.run_id
-    learning.plot(run_dir)
-    curve = learning.read_eval(run_dir)
+    learning_curves.plot(run_dir)
+    curve = learning_curves.read_eval(run_dir)
     results, stem = Path(args.results_dir), results_stem(args)
     if curve:
-        learning.write_csv(results / f"{stem}-s{args.seed}.csv", curve, learning.curve_fields(curve))
-    seeds = {int(p.stem[len(stem) + 2:]): learning.read_curve_csv(p) for p in sorted(results.glob(f"{stem}-s*.csv"))
+        learning_curves.write_csv(results / f"{stem}-s{args.seed}.csv", curve, learning_curves.curve_fields(curve))
+    seeds = {int(p.stem[len(stem) + 2:]): learning_curves.read_curve_csv(p)
+             for p in sorted(results.glob(f"{stem}-s*.csv"))
              if p.stem[len(stem) + 2:].isdigit()}  # not another tag's: robot-reach-robot-slow-s1
     if seeds:
-        combined = learning.aggregate(list(seeds.values()))
-        learning.write_csv(results / f"{stem}.csv", combined, learning.AGGREGATE_FIELDS)
+        combined = learning_curves.aggregate(list(seeds.values()))
+        learning_curves.write_csv(results / f"{stem}.csv", combined, learning_curves.AGGREGATE_FIELDS)
         named = {f"seed {seed}": c for seed, c in sorted(seeds.items())}
-        learning.plot_seeds(named, combined, results / f"{stem}.png", f"{stem}: greedy success, {len(seeds)} seed(s)")
+        learning_curves.plot_seeds(named, combined, results / f"{stem}.png",
+                                   f"{stem}: greedy success, {len(seeds)} seed(s)")
         print(f"wrote {results / stem}.csv and {stem}.png from {len(seeds)} per-seed CSV(s)")
-        print(learning.summarise(named, combined, args.thresholds))
+        print(learning_curves.summarise(named, combined, args.thresholds))
     return curve
 
 

@@ -13,7 +13,7 @@
 
 The file-backed answers only read files the roles write anyway, are memoised on the files'
 stamps and carry an ETag (a browser's revalidation gets a 304), so polling the page adds no
-work to the learner or the actors. The JSON shapes are documented in README.md (Dashboard).
+work to the learner or the actors. The JSON shapes are documented in docs/dashboard.md.
 
 Counters are whatever the roles report, NaN and inf included. JSON has no spelling for
 those (Starlette refuses them with an HTTP 500), so every JSON answer maps a non-finite
@@ -44,7 +44,8 @@ from dashboard.filecache import FileCache
 from dashboard.history import RunHistory
 from dashboard.metrics import CONTENT_TYPE, metrics_registry
 from dashboard.registry import RoleTable
-from dashboard.roles import with_state_words
+from dashboard.role_states import with_state_words
+
 
 def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | None = None) -> FastAPI:
     """The app for one run; ``run_dir`` (runs/<run_id>/) feeds the charts, episodes and Q-attention view."""
@@ -106,7 +107,9 @@ def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | N
     async def index() -> HTMLResponse:
         return HTMLResponse(page)
 
-    from dashboard.operator import router as operator_routes  # POST /api/operator/<actor>/<action> (robot actors)
+    from dashboard.operator_buttons import (
+        router as operator_routes,  # POST /api/operator/<actor>/<action> (robot actors)
+    )
     app.include_router(operator_routes)
     return app
 

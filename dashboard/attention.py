@@ -1,6 +1,6 @@
 """``/api/qattention``: the latest Q-attention snapshot (``runs/<id>/eval/qattention-latest.npz``) as JSON.
 
-The evaluator writes the file atomically after every evaluation (actors/qattention_snapshot.py);
+The evaluator writes the file atomically after every evaluation (protocol/attention_snapshot.py is the format);
 here it is only read (``allow_pickle=False``) and memoised on its stamp. Coordinates are
 rounded to 0.1 mm and voxel lists are flat ``[x0, y0, z0, x1, ...]`` arrays, so a 16^3 grid
 with a thousand occupied voxels stays a few tens of kB.
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from actors.qattention_snapshot import FILENAME, Snapshot, load_snapshot
 from dashboard.filecache import FileCache
+from protocol.attention_snapshot import FILENAME, Snapshot, load_snapshot
 
 
 class AttentionSnapshot:

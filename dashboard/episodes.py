@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from actors.demos.mcap_io import DemoFileError, EpisodeView, read_episode_view
 from dashboard.filecache import CsvTail, FileCache, stamp
+from protocol.episode_file import DemoFileError, EpisodeView, read_episode_view
 
 EPISODE_FILE = re.compile(r"^v(\d{6,})-seed(\d+)\.mcap$")
 AXIS_LENGTH_M = 0.05
@@ -125,7 +125,9 @@ def project_pose(action, intrinsics, extrinsics, size) -> dict:
     a = np.asarray(action, np.float64)
     centre, rot = a[:3], quaternion_matrix(a[3:7])
     tips = [centre + AXIS_LENGTH_M * rot[:, k] for k in range(3)]
-    uv, depth = project(np.stack([centre, *tips]), np.asarray(intrinsics, np.float64), np.asarray(extrinsics, np.float64))
+    uv, depth = project(
+        np.stack([centre, *tips]), np.asarray(intrinsics, np.float64), np.asarray(extrinsics, np.float64)
+    )
     h, w = size
     u, v = uv[0]
     in_view = bool(depth[0] > 0 and -0.5 <= u < w - 0.5 and -0.5 <= v < h - 0.5)

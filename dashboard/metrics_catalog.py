@@ -62,7 +62,7 @@ RATE = Skip("a rate: PromQL's rate() over the matching counter")
 RATIO = Skip("a ratio of exported counters: divide them in PromQL")
 
 # -- parts several roles share (same meaning, so one name) ---------------------------------
-_OUTBOX: dict[str, Entry] = {  # actors/outbox.py: actors and the demo source
+_OUTBOX: dict[str, Entry] = {  # protocol/episode_outbox.py: actors and the demo source
     "sent": _c("outbox_sent", "Episodes published for the first time (resends are not counted here)."),
     "acked": _c("outbox_acked", "Episodes the replay acknowledged as stored."),
     "duplicates": _c("outbox_duplicate_acks", "Episodes the replay acknowledged as duplicates of stored ones."),
@@ -75,7 +75,7 @@ _OUTBOX: dict[str, Entry] = {  # actors/outbox.py: actors and the demo source
                          "Acknowledgements for no pending episode (e.g. the second of a resend)."),
     "outbox_pending": _g("outbox_pending_episodes", "Episodes published and not yet acknowledged."),
 }
-_FOLLOWER: dict[str, Entry] = {  # actors/weights.py: actors and the evaluator
+_FOLLOWER: dict[str, Entry] = {  # protocol/weights_follower.py: actors and the evaluator
     "weights_announced": _g("weights_announced_version",
                             "Weights version the learner's heartbeat last announced (-1: none heard yet)."),
     "weights_superseded": _c("weights_superseded", "Weights payloads pushed out of the inbox unread by newer ones."),
@@ -89,6 +89,7 @@ _ACTING: dict[str, Entry] = {  # what every acting process counts: the simulated
     "episodes": _c("actor_episodes", "Episodes this actor collected."),
     "env_steps": _c("actor_env_steps", "Environment steps (decisions) this actor took."),
     "successes": _c("actor_successes", "Episodes this actor ended in success."),
+    "timeouts": _c("actor_timeout_episodes", "Episodes that ran out of decisions."),
     "unreachable": _c("actor_unreachable_episodes",
                       "Episodes ended on a pose the arm could not reach, whatever the reason (or none given)."),
     "reach_checks": _c("actor_reach_checks", "Reachability tests run while choosing poses."),
@@ -97,15 +98,19 @@ _ACTING: dict[str, Entry] = {  # what every acting process counts: the simulated
     "weights_version": _g("actor_weights_version", "Weights version this actor acts with (0: initial network)."),
     "epsilon": _g("actor_epsilon", "Exploration probability this actor acts with now (actor.epsilon, decayed)."),
     "success_rate": RATIO,
+    "unreachable_rate": RATIO,
 }
 _EVALUATION: dict[str, Entry] = {  # the latest greedy evaluation: the evaluator's, or a robot's own
     "eval_success": _g("eval_success_ratio", "Greedy success rate of the latest evaluation (0 to 1)."),
     "eval_episodes": _g("eval_episodes", "Episodes in the latest evaluation."),
     "eval_return": _g("eval_mean_return", "Mean episode return of the latest evaluation."),
-    "eval_unreachable": _g("eval_unreachable_ratio",
-                           "Share of the latest evaluation's episodes that ended unreachable (0 to 1)."),
+    "eval_unreachable": _g(
+        "eval_unreachable_ratio", "Share of the latest evaluation's episodes that ended unreachable (0 to 1)."
+    ),
     "eval_version": _g("eval_weights_version", "Weights version of the latest evaluation."),
-    "eval_env_steps": _g("eval_env_steps", "Env steps the run had collected when the evaluated weights were published."),
+    "eval_env_steps": _g(
+        "eval_env_steps", "Env steps the run had collected when the evaluated weights were published."
+    ),
 }
 _UNREACHABLE_BY = ("unreachable_", _c("actor_unreachable_episodes_by_reason",
                                       "Episodes ended unreachable, by the control agent's reason.", "reason"))
@@ -116,12 +121,10 @@ EXACT: dict[str, dict[str, Entry]] = {
         **_ACTING,
         "weights_latency_s": _g("actor_weights_latency_seconds",
                                 "Publish-to-receipt delay of the newest weights update (wall clocks)."),
-        "unreachable_rate": RATIO,
     },
     "robot": {  # actors/robot: the actor loop on a real arm (or franky-sim), a person giving reward
         **_ACTING,
         **_EVALUATION,  # robot.evaluate: the arm plays the greedy episodes itself
-        "timeouts": _c("robot_timeout_episodes", "Episodes that ran out of decisions."),
         "operator_stops": _c("robot_operator_stopped_episodes", "Episodes cut short by an operator stop (dropped)."),
         "operator_rejected": _c("robot_operator_messages_rejected",
                                 "Operator messages refused: undecodable, or addressed to another actor."),

@@ -10,7 +10,7 @@ import uvicorn
 
 from dashboard.app import create_app
 from dashboard.config import DashboardConfig
-from dashboard.operator import OperatorPublisher
+from dashboard.operator_buttons import OperatorPublisher
 from dashboard.registry import FabricFeed, RoleTable
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
@@ -32,7 +32,8 @@ def run(config: DashboardConfig, ctx: RoleContext) -> int:
         )
     )
     session = open_session(ctx.fabric)
-    app.state.operator = OperatorPublisher(session, ctx.run_id)  # the robot actors' buttons (dashboard/operator.py)
+    # the robot actors' buttons (dashboard/operator_buttons.py)
+    app.state.operator = OperatorPublisher(session, ctx.run_id)
     feed = FabricFeed(session, ctx.run_id, table)
     heartbeat = Heartbeat(
         session,

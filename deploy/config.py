@@ -6,6 +6,9 @@ The resolved config is written to ``runs/<run-id>/config.yaml``; every role proc
 launcher starts reads that same file, so all of them agree.
 
 Adding a section is one line in :class:`RunConfig` (its dataclass lives with its role).
+Every section checks its fields' ranges when built (``protocol/config_checks.py``), and
+:func:`check_across_sections` the rules that tie sections together, so a bad value is one
+:class:`ConfigError` line when the config is resolved, before any process starts.
 """
 
 from __future__ import annotations
@@ -22,14 +25,15 @@ from typing import Any, Optional
 
 import yaml
 
-from dashboard.config import DashboardConfig
-from deploy.config_loader import ConfigError, field_docs, from_dict, load_yaml, merge, to_dict
-from protocol import keys
-from protocol.fabric import FabricConfig
 from actors.config import ActorConfig
 from actors.robot.config import RobotConfig
 from actors.sim.config import SimConfig
+from dashboard.config import DashboardConfig
+from deploy.config_loader import ConfigError, field_docs, from_dict, load_yaml, merge, to_dict
 from learner.config import LearnerConfig
+from protocol import keys
+from protocol.config_checks import above, at_least, non_empty, within
+from protocol.fabric import FabricConfig
 from qattention.config import QAttentionConfig
 from replay_server.config import ReplayConfig
 
@@ -60,59 +64,73 @@ class RunSection:
     """Identity of the run and where its files go."""
 
     run_id: Optional[str] = None  #: names the run and its Zenoh keys; None: `launch` picks a timestamp
-    seed: int = 0  #: base random seed; every role derives its own streams from it
-    runs_dir: str = "runs"  #: parent folder of run directories (runs/<run-id>/)
+    seed: int = 0  #: base random seed, >= 0; every role derives its own streams from it
+    runs_dir: str = "runs"  #: parent folder of run directories (runs/<run-id>/); not empty
 
     def __post_init__(self) -> None:
         if self.run_id is not None:
             keys.check_id(self.run_id, "run id")
+        at_least(self, 0, "seed")
+        non_empty(self, "runs_dir")
 
 
 @dataclass
 class LaunchConfig:
     """What `c2farm launch` starts on this machine and how it supervises it."""
 
-    roles: list[str] = field(default_factory=lambda: list(DEFAULT_ROLES))  #: roles started here (others run elsewhere); add robot for a robot actor
-    num_actors: int = 2  #: actor processes to start
-    instance_prefix: str = ""  #: prepended to the instance names started here, e.g. "box3-" (unique per machine)
-    restart: list[str] = field(  #: roles restarted when their process dies or goes silent (one-shot roles only on failure)
+    #: roles started here (at least one; others run elsewhere); add robot for a robot actor
+    roles: list[str] = field(default_factory=lambda: list(DEFAULT_ROLES))
+    num_actors: int = 2  #: actor processes to start, >= 0
+    #: prepended to the instance names started here, e.g. "box3-" (unique per machine; letters, digits, '_', '.', '-')
+    instance_prefix: str = ""
+    #: roles restarted when their process dies or goes silent (one-shot roles only on failure)
+    restart: list[str] = field(
         default_factory=lambda: list(ROLES)
     )
-    progress_every_s: float = 30.0  #: print a progress line (updates, env steps, eval success) this often; 0 = never
-    restart_backoff_s: float = 1.0  #: wait before restarting an instance; doubles per quick failure in a row
-    restart_backoff_max_s: float = 30.0  #: ceiling of the restart wait; an instance that ran this long starts the doubling afresh
-    max_restarts: int = 20  #: restarts per instance before the launcher gives up on it
-    liveness_timeout_s: float = 15.0  #: a role whose beacon (runs/<id>/heartbeats/) is silent this long is killed and restarted; 0 = never
-    liveness_grace_s: float = 60.0  #: a just-started role is not judged silent for this long (slow imports on a busy machine)
-    shutdown_grace_s: float = 8.0  #: one deadline for the whole stop: SIGTERM all, SIGKILL what is left after it (stop < 10 s)
-    router_wait_s: float = 20.0  #: how long roles wait for the Zenoh router to accept connections
+    #: print a progress line (updates, env steps, eval success) this often, seconds, >= 0; 0 = never
+    progress_every_s: float = 30.0
+    #: wait before restarting an instance, seconds, >= 0; doubles per quick failure in a row
+    restart_backoff_s: float = 1.0
+    #: ceiling of the restart wait, seconds, >= 0; an instance that ran this long starts the doubling afresh
+    restart_backoff_max_s: float = 30.0
+    max_restarts: int = 20  #: restarts per instance before the launcher gives up on it, >= 0
+    #: a role whose beacon (runs/<id>/heartbeats/) is silent this long (seconds, >= 0) is killed and restarted; 0 =
+    #: never
+    liveness_timeout_s: float = 15.0
+    #: a just-started role is not judged silent for this long, seconds, >= 0 (slow imports on a busy machine)
+    liveness_grace_s: float = 60.0
+    #: one deadline for the whole stop, seconds, in (0, 60]: SIGTERM all, SIGKILL what is left after it (stop < 10 s)
+    shutdown_grace_s: float = 8.0
+    router_wait_s: float = 20.0  #: how long roles wait for the Zenoh router to accept connections, seconds, > 0
 
     def __post_init__(self) -> None:
         for role in list(self.roles) + list(self.restart):
             if role not in ROLES:
                 raise ValueError(f"unknown role {role!r}; roles are {', '.join(ROLES)}")
-        if self.num_actors < 0:
-            raise ValueError("num_actors must be >= 0")
-        if self.max_restarts < 0 or self.restart_backoff_s < 0 or self.restart_backoff_max_s < 0:
-            raise ValueError("restart settings must be >= 0")
-        if not 0 < self.shutdown_grace_s <= 60:
-            raise ValueError("shutdown_grace_s must be in (0, 60]")
-        if self.liveness_timeout_s < 0 or self.liveness_grace_s < 0:
-            raise ValueError("liveness_timeout_s and liveness_grace_s must be >= 0")
+        non_empty(self, "roles")
+        if self.instance_prefix and not keys.is_valid_id(self.instance_prefix + "x"):
+            raise ValueError(f"instance_prefix must start with a letter or digit and hold only letters, digits, "
+                             f"'_', '.', '-' (got {self.instance_prefix!r})")
+        at_least(self, 0, "num_actors", "max_restarts", "progress_every_s", "restart_backoff_s",
+                 "restart_backoff_max_s", "liveness_timeout_s", "liveness_grace_s")
+        within(self, 0, 60, "shutdown_grace_s", open_low=True)
+        above(self, 0, "router_wait_s")
 
 
 @dataclass
 class DemoConfig:
     """Scripted demonstrations fed to the replay at the start of a run."""
 
-    episodes: int = 10  #: demos per run (the paper's 10); 0 = none
-    directory: str = "demos"  #: demos live in <directory>/<task>-<cameras>-<size>px/, shared by runs; made if missing
-    seed: int = 0  #: seed of the first scripted demo
-    every_n: int = 10  #: demo augmentation: a keyframe episode starts every this many control steps
+    episodes: int = 10  #: demos per run, >= 0 (the paper's 10); 0 = none
+    #: demos live in <directory>/<task>-<cameras>-<size>px/, shared by runs; made if missing; not empty
+    directory: str = "demos"
+    seed: int = 0  #: seed of the first scripted demo, >= 0
+    every_n: int = 10  #: demo augmentation: a keyframe episode starts every this many control steps, >= 1
 
     def __post_init__(self) -> None:
-        if self.episodes < 0 or self.every_n < 1:
-            raise ValueError("episodes must be >= 0 and every_n >= 1")
+        at_least(self, 0, "episodes", "seed")
+        at_least(self, 1, "every_n")
+        non_empty(self, "directory")
 
 
 @dataclass
@@ -129,7 +147,8 @@ class RunConfig:
     sim: SimConfig = field(default_factory=SimConfig)  #: the PyBullet Panda task every actor steps
     robot: RobotConfig = field(default_factory=RobotConfig)  #: a real arm as one more actor (c2farm robot)
     demos: DemoConfig = field(default_factory=DemoConfig)  #: scripted demonstrations
-    qattention: QAttentionConfig = field(default_factory=QAttentionConfig)  #: the C2F-ARM networks and loss (cameras, episode length and scene bounds come from sim)
+    #: the C2F-ARM networks and loss (cameras, episode length and scene bounds come from sim)
+    qattention: QAttentionConfig = field(default_factory=QAttentionConfig)
 
     def __post_init__(self) -> None:
         if "robot" in self.launch.roles and not self.actor.scene_bounds_on_wire:
@@ -169,7 +188,30 @@ def load_config(
         data = merge(data, _checked(load_yaml(path), str(path)))
     for override in overrides:
         data = merge(data, override)
-    return from_dict(RunConfig, data)
+    config = from_dict(RunConfig, data)
+    check_across_sections(config)
+    return config
+
+
+def check_across_sections(config: RunConfig) -> None:
+    """Rules that tie two sections together (each section checks its own fields' ranges when
+    built); checked on the resolved config, so a file may set one side and --set the other."""
+    learner, replay = config.learner, config.replay
+    if learner.batch_size > replay.max_batch_size:
+        raise ConfigError(f"learner.batch_size must be <= replay.max_batch_size ({replay.max_batch_size}), "
+                          f"or the replay refuses every batch (got {learner.batch_size})")
+    if replay.samples_per_insert > 0 and replay.samples_per_insert_error_buffer < learner.batch_size:
+        raise ConfigError(
+            f"replay.samples_per_insert_error_buffer must be >= learner.batch_size ({learner.batch_size}) "
+            f"when replay.samples_per_insert > 0 (got {replay.samples_per_insert_error_buffer:g})"
+        )
+    if replay.min_size_to_sample > replay.capacity_transitions:
+        raise ConfigError(
+            f"replay.min_size_to_sample must be <= replay.capacity_transitions "
+            f"({replay.capacity_transitions}), or sampling never starts (got {replay.min_size_to_sample})"
+        )
+    if not config.sim.cameras:
+        raise ConfigError("sim.cameras must name at least one camera: the networks see the scene through them (got [])")
 
 
 def _checked(data: dict, origin: str) -> dict:

@@ -5,6 +5,10 @@ Every key must name a field and every value must fit the field's type, or a
 
     replay.capasity: unknown key (did you mean 'capacity'?)
     replay.capacity: expected int, got 'lots'
+    learner.batch_size must be >= 1 (got -3)
+
+The last kind is a section's ``__post_init__`` range check (``protocol/config_checks.py``):
+a ValueError whose message starts with the field's name gets the section's dotted path.
 
 Supported field types: int, float, bool, str, None, Optional[...], ``X | Y`` unions,
 list[...], tuple[...] (fixed or ``...``), dict[str, ...], Literal[...] and nested
@@ -52,7 +56,11 @@ def from_dict(cls: type[T], data: Any, path: str = "") -> T:
     except (TypeError, ValueError) as exc:  # a __post_init__ check
         if isinstance(exc, ConfigError):
             raise
-        raise ConfigError(f"{path or '<root>'}: {exc}") from None
+        message = " ".join(str(exc).split())  # one line
+        head = message.split(" ", 1)[0].split("[", 1)[0]
+        if path and head in names:  # "batch_size must be >= 1 (got -3)" -> "learner.batch_size must be ..."
+            raise ConfigError(f"{path}.{message}") from None
+        raise ConfigError(f"{path or '<root>'}: {message}") from None
 
 
 def to_dict(obj: Any) -> Any:

@@ -22,7 +22,7 @@ def problems(config, roles: list[str]) -> list[str]:
     """Everything wrong with starting ``roles`` of ``config`` on this machine, one line each."""
     found: list[str] = []
     if SIM_ROLES & set(roles):
-        from actors.sim.task_names import TASKS
+        from actors.sim.task_specs import TASKS
 
         if config.sim.task not in TASKS:
             found.append(f"sim.task: unknown task {config.sim.task!r}; choose from {', '.join(TASKS)}")

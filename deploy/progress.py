@@ -30,7 +30,9 @@ def progress_line(summary: dict, elapsed_s: float, min_size_to_sample: int) -> s
     updates, replay = summary.get("updates"), summary.get("replay_size")
     if not updates:
         if replay is not None and replay < min_size_to_sample:
-            parts.append(f"learner waits: replay {_count(replay)}/{min_size_to_sample:,} transitions before training starts")
+            parts.append(
+                f"learner waits: replay {_count(replay)}/{min_size_to_sample:,} transitions before training starts"
+            )
         elif updates is None:
             parts.append("learner not reporting yet")
         else:

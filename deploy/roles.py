@@ -14,6 +14,7 @@ import tempfile
 from pathlib import Path
 from typing import Callable
 
+from actors.sim.task_specs import task_spec
 from deploy.config import DEFAULT_INSTANCE, RunConfig
 from protocol.role import RoleContext
 
@@ -24,11 +25,10 @@ def network_config(config: RunConfig):
     """The Q-attention config with the task-dependent keys derived from ``sim``.
 
     Cameras, episode length and the depth-0 scene bounds always come from the simulator
-    section and the task, so actors, evaluators and the learner cannot disagree on them.
+    section and the task's spec (read without pybullet, so the learner does not load it), so
+    actors, evaluators and the learner cannot disagree on them.
     """
-    from actors.sim.tasks import make_task
-
-    task = make_task(config.sim.task)
+    task = task_spec(config.sim.task)
     return config.qattention.replace(
         cameras=tuple(config.sim.cameras),
         episode_length=config.sim.episode_length or task.episode_length,
@@ -38,10 +38,8 @@ def network_config(config: RunConfig):
 
 def demo_dir(config: RunConfig) -> Path:
     """Demos are shared between runs of the same task (and its revision), cameras and image size."""
-    from actors.sim.tasks import make_task
-
     sim = config.sim
-    revision = make_task(sim.task).revision
+    revision = task_spec(sim.task).revision
     name = f"{sim.task}{f'-r{revision}' if revision > 1 else ''}-{'+'.join(sim.cameras)}-{sim.image_size}px"
     return Path(config.demos.directory) / name
 
@@ -59,30 +57,32 @@ def replay(config: RunConfig, ctx: RoleContext) -> int:
 
 
 def learner(config: RunConfig, ctx: RoleContext) -> int:
-    from learner.train import run
+    from learner.train import LearnerSetup, run
 
     settings = config.learner
     if not settings.replay_endpoint:  # same host as the replay: dial what it binds
         endpoint = config.replay.zmq_endpoint.replace("://*:", "://127.0.0.1:").replace("://0.0.0.0:", "://127.0.0.1:")
         settings = dataclasses.replace(settings, replay_endpoint=endpoint)
-    return run(settings, network_config(config), ctx)
+    return run(LearnerSetup(settings, network_config(config)), ctx)
 
 
 def actor(config: RunConfig, ctx: RoleContext) -> int:
     from actors.actor_loop import run
+    from actors.role_loop import ActingSetup
 
-    return run(config.actor, config.sim, network_config(config), ctx)
+    return run(ActingSetup(config.actor, config.sim, network_config(config)), ctx)
 
 
 def evaluator(config: RunConfig, ctx: RoleContext) -> int:
     from actors.evaluation import run
+    from actors.role_loop import ActingSetup
 
-    return run(config.actor, config.sim, network_config(config), ctx)
+    return run(ActingSetup(config.actor, config.sim, network_config(config)), ctx)
 
 
 def demo_source(config: RunConfig, ctx: RoleContext) -> int:
     """Generate the run's demos if they are missing, then publish them to the replay."""
-    from actors.demo_source import run
+    from actors.demo_source import DemoSourceSetup, run
     from actors.demos.generate import generate_demos
 
     directory = demo_dir(config)
@@ -98,14 +98,14 @@ def demo_source(config: RunConfig, ctx: RoleContext) -> int:
             directory.mkdir(parents=True, exist_ok=True)
             for path in sorted(Path(partial).glob("*.mcap")):
                 os.replace(path, directory / path.name)
-    return run(directory, config.actor, ctx, every_n=config.demos.every_n, limit=config.demos.episodes,
-               depths=config.qattention.depths)
+    return run(DemoSourceSetup(directory, config.actor, every_n=config.demos.every_n, limit=config.demos.episodes,
+                               depths=config.qattention.depths), ctx)
 
 
 def robot(config: RunConfig, ctx: RoleContext) -> int:
-    from actors.robot.actor import run, terminal_stream
+    from actors.robot.actor import RobotSetup, run, terminal_stream
 
-    return run(config.actor, config.robot, config.sim.task, network_config(config), ctx, terminal=terminal_stream())
+    return run(RobotSetup(config.actor, config.robot, config.sim.task, network_config(config), terminal_stream()), ctx)
 
 
 def dashboard(config: RunConfig, ctx: RoleContext) -> int:

@@ -15,13 +15,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from protocol import transition as tr
+
 #: Arrays in which non-finite values are meaningful (invalid depth) and handled downstream.
-POINT_SUFFIXES = ("_points", "_points_tp1")
+POINT_SUFFIXES = ("_points", tr.next_name("_points"))
 
 
 def nonfinite_rows(arrays: dict[str, np.ndarray]) -> tuple[list[str], np.ndarray]:
     """(names of poisoned arrays, bool [B] rows that hold a non-finite value outside point clouds)."""
-    b = len(arrays["indices"])
+    b = len(arrays[tr.INDICES])
     rows = np.zeros(b, bool)
     names = []
     for name, a in arrays.items():
@@ -46,7 +48,7 @@ def label_out_of_range_rows(arrays: dict[str, np.ndarray], voxel_size: int, dept
     ``rot_grip_indices`` [B, 4] three Euler bins < ``rotation_bins`` and a gripper bin < 2;
     ``attention_coordinates`` [B, D, 3] the same D. Missing labels are fine (recomputed).
     """
-    b = len(arrays["indices"])
+    b = len(arrays[tr.INDICES])
     rows = np.zeros(b, bool)
     names = []
     limits = {
@@ -54,11 +56,12 @@ def label_out_of_range_rows(arrays: dict[str, np.ndarray], voxel_size: int, dept
         "attention_coordinates": (3, None),
         "rot_grip_indices": (4, np.array([rotation_bins] * 3 + [2])),
     }
-    for name, (width, upper) in limits.items():
+    for label, (width, upper) in limits.items():
+        name = tr.label_name(label)
         a = arrays.get(name)
         if a is None:
             continue
-        per_depth = name != "rot_grip_indices"
+        per_depth = label != "rot_grip_indices"
         shape_ok = a.shape == ((b, depths, width) if per_depth else (b, width))
         if not shape_ok:
             names.append(name)
@@ -76,15 +79,15 @@ def label_out_of_range_rows(arrays: dict[str, np.ndarray], voxel_size: int, dept
 def nstep_out_of_range_rows(arrays: dict[str, np.ndarray]) -> tuple[list[str], np.ndarray]:
     """(names of bad n-step arrays, bool [B] rows whose n-step fields do not describe a transition).
 
-    ``rewards`` [B, n] and ``bootstrap_steps`` [B] come together or not at all, and each
+    ``n_rewards`` [B, n] and ``bootstrap_steps`` [B] come together or not at all, and each
     ``bootstrap_steps`` lies in 1..n: a zero would bootstrap from the observation itself, a
     larger one discount by more steps than the rewards cover.
     """
-    b = len(arrays["indices"])
-    rewards, steps = arrays.get("rewards"), arrays.get("bootstrap_steps")
+    b = len(arrays[tr.INDICES])
+    rewards, steps = arrays.get(tr.N_REWARDS), arrays.get(tr.BOOTSTRAP_STEPS)
     if rewards is None and steps is None:
         return [], np.zeros(b, bool)
     if rewards is None or steps is None or rewards.ndim != 2 or rewards.shape[0] != b or steps.shape != (b,):
-        return ["rewards", "bootstrap_steps"], np.ones(b, bool)
+        return [tr.N_REWARDS, tr.BOOTSTRAP_STEPS], np.ones(b, bool)
     bad = (steps < 1) | (steps > rewards.shape[1])
-    return (["bootstrap_steps"] if bad.any() else []), bad
+    return ([tr.BOOTSTRAP_STEPS] if bad.any() else []), bad

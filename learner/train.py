@@ -16,7 +16,7 @@ import json
 import logging
 import random
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Callable
 
 import numpy as np
@@ -28,16 +28,16 @@ from learner.checkpoint import NonFiniteState, load_latest, save_checkpoint
 from learner.config import LearnerConfig
 from learner.metrics import MetricsLog
 from learner.versions import PublishedVersion
-from learner.weights import WeightsPublisher
-from protocol.episode import EXTRA_PREFIX
+from protocol import transition as tr
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
 from protocol.role import RoleContext
+from protocol.sample_wire import ReplayClient, ReplayError, ReplayTimeout
+from protocol.weights_publisher import WeightsPublisher
 from qattention.agent import C2FARM
 from qattention.batch import TransitionBatch
 from qattention.config import QAttentionConfig
 from qattention.digest import network_digest
-from protocol.sample_wire import ReplayClient, ReplayError, ReplayTimeout
 
 log = logging.getLogger("learner")
 
@@ -128,7 +128,7 @@ class Learner:
 
         The order is the point: the version is recorded on disk first (a restart never reuses
         it), then ``announce``-d in the heartbeat (actors take only versions the learner has
-        announced, actors/weights.py), then sent.
+        announced, protocol/weights_follower.py), then sent.
         """
         version = self.version + 1
         payload = publisher.encode(self.acting.weights(self.agent.weights()), version, self.step, self.env_steps)
@@ -149,8 +149,6 @@ class Learner:
         counted, and only its poisoned rows get a new priority, 0, so the replay rarely serves
         them again; the other rows keep theirs. ``metrics`` is then empty.
         """
-        # Act-time labels travel as observation extras ("extra_voxel_indices", ...).
-        arrays = {name.removeprefix(EXTRA_PREFIX): a for name, a in arrays.items()}
         poisoned, bad = nonfinite_rows(arrays)
         reason = "non-finite values"
         if not poisoned:
@@ -172,7 +170,7 @@ class Learner:
         self.step += 1
         if self.acting.enabled and not metrics["skipped_nonfinite"]:
             self.acting.update(self.agent.weights())
-        self.samples += int(arrays["indices"].shape[0])
+        self.samples += int(arrays[tr.INDICES].shape[0])
         if metrics["skipped_nonfinite"]:
             self.health["skipped_updates"] += 1
             if _worth_logging(self.health["skipped_updates"]):
@@ -193,8 +191,17 @@ class Learner:
         }
 
 
-def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> int:
+@dataclass
+class LearnerSetup:
+    """What the learner role is told (``run(setup, ctx)``)."""
+
+    learner: LearnerConfig  #: batch, optimiser, publishing, checkpoints and the replay endpoint to sample from
+    network: QAttentionConfig  #: the Q-attention cascade to train (the actors act with the same one)
+
+
+def run(setup: LearnerSetup, ctx: RoleContext) -> int:
     """Train until stopped (or ``max_updates``); checkpoint on the way out."""
+    config, qconfig = setup.learner, setup.network
     learner = Learner(config, qconfig, ctx)
     session = open_session(ctx.fabric)
     heartbeat = Heartbeat(session, ctx.run_id, "learner", ctx.instance, counters=learner.counters,
@@ -218,11 +225,11 @@ def run(config: LearnerConfig, qconfig: QAttentionConfig, ctx: RoleContext) -> i
                 continue
             metrics, rows, priorities = learner.train_step(batch.arrays)
             if len(rows):
-                client.update_priorities(batch.arrays["indices"][rows], batch.arrays["keys"][rows], priorities)
+                client.update_priorities(batch.arrays[tr.INDICES][rows], batch.arrays[tr.KEYS][rows], priorities)
             if not metrics:
                 continue  # a rejected batch: no update happened
             window_updates += 1
-            window_samples += int(batch.arrays["indices"].shape[0])
+            window_samples += int(batch.arrays[tr.INDICES].shape[0])
             learner.env_steps = int(batch.info.get("transitions_inserted", learner.env_steps))
             if learner.step % config.publish_every == 0:
                 learner.publish(publisher, heartbeat.publish)

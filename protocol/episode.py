@@ -25,6 +25,7 @@ from protocol.codec import WIRE_DTYPES, ProtocolError, check_array_values, check
 from protocol.keys import MAX_ID_LENGTH, is_valid_id
 from protocol.limits import DEFAULT_LIMITS, MAX_INT, Limits
 from protocol.observation import ACTION_SIZE, CameraFrame, Observation
+from protocol.transition import ACT_LABELS, EXTRA_PREFIX, NEXT, label_name
 
 #: Per-observation proprioceptive arrays: name -> (trailing shape, allowed dtypes).
 PROPRIO_ARRAYS: dict[str, tuple[tuple[int, ...], tuple[str, ...]]] = {
@@ -36,16 +37,6 @@ PROPRIO_ARRAYS: dict[str, tuple[tuple[int, ...], tuple[str, ...]]] = {
     "step": ((), ("int32", "int64")),
 }
 CAMERA_SUFFIXES = ("_rgb", "_points", "_intrinsics", "_extrinsics")
-EXTRA_PREFIX = "extra_"
-
-#: Act-time labels (``extra_`` + name) the actor records with each observation, read by the
-#: learner: name -> (trailing shape, "D" being the cascade depth, allowed dtypes).
-ACT_LABELS: dict[str, tuple[tuple, tuple[str, ...]]] = {
-    "voxel_indices": (("D", 3), ("int32", "int64")),
-    "attention_coordinates": (("D", 3), ("float32", "float64")),
-    "rot_grip_indices": ((4,), ("int32", "int64")),
-}
-
 #: Default limits that keep one episode from exhausting a receiver (see ``protocol.limits``).
 MAX_STEPS = DEFAULT_LIMITS.max_steps
 MAX_CAMERAS = DEFAULT_LIMITS.max_cameras
@@ -140,7 +131,7 @@ def stack_observations(observations: list[Observation], points_dtype=np.float16)
 
 def is_point_cloud(name: str) -> bool:
     """Arrays that may hold NaN: ``*_points`` (and a batch's ``*_points_tp1``)."""
-    return name.removesuffix("_tp1").endswith("_points")
+    return name.removesuffix(NEXT).endswith("_points")
 
 
 def validate_episode(ep: Episode, limits: Limits = DEFAULT_LIMITS) -> None:
@@ -230,7 +221,9 @@ def _validate_camera(obs: dict[str, np.ndarray], cam: str, limits: Limits) -> No
     height, width, channels = rgb.shape[1:]
     side = limits.max_image_side
     if channels != 3 or not (1 <= height <= side and 1 <= width <= side):
-        raise ProtocolError(f"observations.{cam}_rgb", f"shape {rgb.shape[1:]}, expected [H, W, 3] with H, W in 1..{side}")
+        raise ProtocolError(
+            f"observations.{cam}_rgb", f"shape {rgb.shape[1:]}, expected [H, W, 3] with H, W in 1..{side}"
+        )
     if points.shape != rgb.shape:
         raise ProtocolError(
             f"observations.{cam}_points", f"shape {points.shape} does not match rgb {rgb.shape}"
@@ -251,7 +244,7 @@ def _validate_act_labels(obs: dict[str, np.ndarray], limits: Limits) -> None:
     """
     depths = None
     for label, (shape, dtypes) in ACT_LABELS.items():
-        name = EXTRA_PREFIX + label
+        name = label_name(label)
         if name not in obs:
             continue
         array = obs[name]

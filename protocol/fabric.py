@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from protocol.config_checks import at_least, zenoh_endpoints
+
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
@@ -21,10 +23,19 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 class FabricConfig:
     """How a process joins the Zenoh fabric."""
 
-    connect: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])  #: router endpoints clients dial
-    listen: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])  #: endpoints the router listens on
+    #: router endpoints clients dial, at least one (tcp/HOST:PORT, port 1-65535)
+    connect: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    #: endpoints the router listens on, at least one (tcp/HOST:PORT, port 0-65535)
+    listen: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])
     shared_memory: bool = True  #: Zenoh's same-host shared-memory transport (off measures the TCP path)
-    reconnect_max_ms: int = 1000  #: a client that lost its router redials at least this often (a restarted router is rejoined within about this)
+    #: a client that lost its router redials at least this often, >= 100 (a restarted router is rejoined within about
+    #: this)
+    reconnect_max_ms: int = 1000
+
+    def __post_init__(self) -> None:
+        zenoh_endpoints(self, "connect", listen=False)
+        zenoh_endpoints(self, "listen", listen=True)
+        at_least(self, 100, "reconnect_max_ms")
 
 
 def zenoh_config(fabric: FabricConfig, mode: str = "client") -> zenoh.Config:

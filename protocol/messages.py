@@ -155,23 +155,9 @@ def encode_unchecked(message: Message) -> bytes:
     """Serialise without any check, as a buggy or hostile sender would (e.g. NaN rewards):
     only for tests and benches that attack the receivers. Everything shipped uses ``encode``."""
     if isinstance(message, Episode):
-        fields = {
-            "actor_id": message.actor_id,
-            "episode_id": message.episode_id,
-            "task": message.task,
-            "seed": message.seed,
-            "is_demo": message.is_demo,
-            "success": message.success,
-            "timeout": message.timeout,
-            "info": message.info,
-        }
+        fields = {name: getattr(message, name) for name in _EPISODE_FIELDS}
         arrays = {f"obs/{k}": v for k, v in message.observations.items()}
-        arrays |= {
-            "step/actions": message.actions,
-            "step/rewards": message.rewards,
-            "step/terminals": message.terminals,
-            "step/policy_versions": message.policy_versions,
-        }
+        arrays |= {f"step/{name}": getattr(message, name) for name in _STEP_ARRAYS}
         return encode_frame(Kind.EPISODE, fields, arrays)
     if isinstance(message, EpisodeAck):
         fields = {
@@ -336,7 +322,9 @@ def _validate_priority_update(m: PriorityUpdate, limits: Limits) -> None:
     if not m.indices.shape == m.keys.shape == m.priorities.shape:
         raise ProtocolError("priorities", "indices, keys and priorities must have one length")
     if m.priorities.shape[0] > limits.max_priorities:
-        raise ProtocolError("priorities", f"{m.priorities.shape[0]} entries exceeds the limit of {limits.max_priorities}")
+        raise ProtocolError(
+            "priorities", f"{m.priorities.shape[0]} entries exceeds the limit of {limits.max_priorities}"
+        )
     if m.indices.size and (m.indices.min() < 0 or m.keys.min() < 0):
         raise ProtocolError("indices", "indices and keys must be >= 0")
     if not np.isfinite(m.priorities).all() or (m.priorities < 0).any():

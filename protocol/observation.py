@@ -30,6 +30,27 @@ class CameraFrame:
     extrinsics: np.ndarray  #: float32 [4, 4], camera-to-world
 
 
+def depth_to_points(depth: np.ndarray, k: np.ndarray, extrinsics: np.ndarray) -> np.ndarray:
+    """World-frame organised cloud [H,W,3] float32: ``points[v,u]`` is the point seen at pixel (u,v)."""
+    h, w = depth.shape
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    z = depth.astype(np.float64)
+    cam = np.stack([(u - k[0, 2]) * z / k[0, 0], (v - k[1, 2]) * z / k[1, 1], z], axis=-1)
+    world = cam @ extrinsics[:3, :3].T + extrinsics[:3, 3]
+    return world.astype(np.float32)
+
+
+def camera_frame(rgb: np.ndarray, depth: np.ndarray, k: np.ndarray, extrinsics: np.ndarray) -> CameraFrame:
+    """The CameraFrame of a camera's raw outputs: every world point from its depth, K and pose.
+
+    Simulated cameras, real RGB-D cameras and the demo file reader all build frames here, so a
+    reloaded or real frame unprojects exactly as the simulator's did.
+    """
+    k32, e32 = k.astype(np.float32), extrinsics.astype(np.float32)  # unproject with what is stored: reload is exact
+    return CameraFrame(rgb=rgb, points=depth_to_points(depth, k32.astype(np.float64), e32.astype(np.float64)),
+                       intrinsics=k32, extrinsics=e32)
+
+
 @dataclass
 class Observation:
     """Everything the policy, keyframe discovery and the replay need from one step."""

@@ -1,7 +1,9 @@
 """What every role process is told about the run it belongs to, and how it is asked to stop.
 
-Roles are thin shells: ``run(config, ctx) -> int`` with their own config section and this
-context. They never import each other; the launcher and the CLI compose them.
+Roles are thin shells: ``run(setup, ctx) -> int``, where ``setup`` is what the role is told
+(its config section, or a small dataclass of the sections it reads, e.g. ``LearnerSetup``) and
+``ctx`` this context. They never import each other; ``deploy/roles.py`` builds each setup from
+the run config and the launcher and the CLI start them.
 """
 
 from __future__ import annotations

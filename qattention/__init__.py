@@ -1,7 +1,7 @@
 """C2F-ARM's coarse-to-fine Q-attention in pure torch: voxel grid, networks, cascade, codec, TD update.
 
 No processes or I/O here; actors call ``C2FARM.act``, the learner ``C2FARM.update``.
-Deviations from the reference are listed in README.md.
+Deviations from the reference are listed in qattention/README.md.
 
 The names below load on first use (PEP 562): every role reads ``qattention.config`` to
 resolve its settings, and the replay server, router and dashboard should not pay torch's

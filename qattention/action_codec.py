@@ -90,7 +90,9 @@ def decode_translation(voxel_indices: torch.Tensor, scene_bounds: torch.Tensor, 
     return c
 
 
-def encode_action(action: torch.Tensor, scene_bounds: torch.Tensor, config, noise: torch.Tensor | None = None) -> ActionLabels:
+def encode_action(
+    action: torch.Tensor, scene_bounds: torch.Tensor, config, noise: torch.Tensor | None = None
+) -> ActionLabels:
     """Executed pose [B, 8] (xyz, quat xyzw, gripper_open) -> labels."""
     idx, coords, bounds = encode_translation(action[:, :3].float(), scene_bounds, config, noise)
     rot = rotation_to_bins(action[:, 3:7], config.rotation_resolution)
@@ -98,7 +100,9 @@ def encode_action(action: torch.Tensor, scene_bounds: torch.Tensor, config, nois
     return ActionLabels(idx, coords, bounds, rot, grip)
 
 
-def decode_action(voxel_indices: torch.Tensor, rot_grip: torch.Tensor, scene_bounds: torch.Tensor, config) -> torch.Tensor:
+def decode_action(
+    voxel_indices: torch.Tensor, rot_grip: torch.Tensor, scene_bounds: torch.Tensor, config
+) -> torch.Tensor:
     """Labels -> pose [B, 8] float32 (xyz, quat xyzw, gripper 0/1)."""
     xyz = decode_translation(voxel_indices, scene_bounds, config)
     quat = bins_to_rotation(rot_grip[:, :3], config.rotation_resolution)

@@ -16,14 +16,13 @@ import torch
 
 from .action_codec import crop_noise, encode_action
 from .batch import ObservationBatch, TransitionBatch
-from .cascade import ActResult, descend
+from .cascade import ActResult, depth_grid, descend
 from .config import QAttentionConfig
-from .crop import gather_points
-from .precision import native_bf16, use_bf16
 from .loss import bootstrap_value, depth_loss, next_bounds, priorities, td_target
+from .precision import native_bf16, use_bf16
 from .q_attention import build_networks
 from .reachability import ReachabilityTest
-from .voxelise import child_bounds, voxelise
+from .voxelise import child_bounds
 from .yaw_augmentation import augment_yaw
 
 
@@ -108,7 +107,6 @@ class C2FARM:
         self.nets.train()
         batch = augment_yaw(batch, cfg.demo_yaw_augmentation, self.generator)
         idx, coords, bounds, rot_grip = self.labels(batch)
-        cams, crop, v = cfg.cameras, cfg.image_crop, cfg.voxel_size
 
         # Targets first, from the networks as they are before this update.
         q_next = []
@@ -116,7 +114,7 @@ class C2FARM:
             prop1 = batch.next_obs.proprioception(cfg.episode_length)
             b1, centre = batch.next_obs.bounds(cfg.scene_bounds), None
             for d in range(cfg.depths):
-                grid = voxelise(*gather_points(batch.next_obs, cams, centre, crop), b1, v)
+                grid = depth_grid(batch.next_obs, cfg, centre, b1)
                 with self._autocast():
                     q_on, rg_on = self.nets[d](grid, prop1)
                     q_tg, rg_tg = self.targets[d](grid, prop1)
@@ -131,7 +129,7 @@ class C2FARM:
         for d in range(cfg.depths):
             y = td_target(batch.reward, batch.terminal, q_next[d], cfg, batch.n_rewards, batch.bootstrap_steps)
             centre = coords[:, d - 1] if d > 0 else None
-            grid = voxelise(*gather_points(batch.obs, cams, centre, crop), bounds[:, d], v)
+            grid = depth_grid(batch.obs, cfg, centre, bounds[:, d])
             with self._autocast():
                 q, rg = self.nets[d](grid, prop)
             out = depth_loss(q, rg, idx[:, d], rot_grip, y, batch.weights, cfg, batch.is_demo)

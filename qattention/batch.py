@@ -1,14 +1,15 @@
 """Torch views of what actors observe and what the replay server serves.
 
-Replay batches are dicts of named numpy arrays (protocol naming: ``{cam}_rgb``, ``{cam}_points``,
-``{cam}_intrinsics``, ``{cam}_extrinsics``, ``gripper_pose``, ``gripper_open``,
-``finger_positions``, ``step``; next observation = same names + ``_tp1``; plus ``action``,
-``reward``, ``terminal``, ``is_demo``, ``weights``, ``policy_version``). Optional keys:
-``scene_bounds`` [B, 6] (per-task depth-0 bounds; else the config's) and the act-time labels
-``voxel_indices`` [B, D, 3], ``attention_coordinates`` [B, D, 3], ``rot_grip_indices`` [B, 4]
-returned by ``act`` (used for non-demo rows when present; demo rows are always relabelled);
-and, for n-step transitions, ``rewards`` [B, n] and ``bootstrap_steps`` [B] (``*_tp1`` is then
-the observation ``bootstrap_steps`` decisions later).
+Replay batches are dicts of named numpy arrays, named by ``protocol.transition``: the observation
+arrays (``{cam}_rgb``, ``{cam}_points``, ``{cam}_intrinsics``, ``{cam}_extrinsics``,
+``gripper_pose``, ``gripper_open``, ``finger_positions``, ``step``), the next observation's under
+the same names + ``_tp1``, and the step fields (``action``, ``reward``, ``terminal``,
+``is_demo``, ``weights``, ``policy_version``). Optional: ``extra_scene_bounds`` [B, 6] (each
+row's depth-0 box; else the config's), the act-time labels ``extra_voxel_indices`` [B, D, 3],
+``extra_attention_coordinates`` [B, D, 3], ``extra_rot_grip_indices`` [B, 4] returned by ``act``
+(used for non-demo rows when present; demo rows are always relabelled), and, for n-step
+transitions, ``n_rewards`` [B, n] and ``bootstrap_steps`` [B] (the next observation is then
+``bootstrap_steps`` decisions later).
 """
 
 from __future__ import annotations
@@ -18,7 +19,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from protocol import transition as tr
+
 from .proprioception import proprioception
+
+#: Each row's depth-0 box, an observation extra (the robot's box differs from the simulator's).
+SCENE_BOUNDS = tr.label_name("scene_bounds")
 
 
 def _t(x, device, dtype=None) -> torch.Tensor:
@@ -60,7 +66,7 @@ class ObservationBatch:
     def from_arrays(cls, arrays: dict[str, np.ndarray], cameras, device="cpu", suffix: str = "") -> "ObservationBatch":
         f32 = torch.float32
         g = lambda k, dtype=f32: _t(arrays[k + suffix], device, dtype)  # noqa: E731
-        sb = arrays.get("scene_bounds" + suffix, arrays.get("scene_bounds"))
+        sb = arrays.get(SCENE_BOUNDS + suffix, arrays.get(SCENE_BOUNDS))
         return cls(
             rgb={c: g(f"{c}_rgb", torch.uint8) for c in cameras},
             points={c: g(f"{c}_points") for c in cameras},
@@ -88,7 +94,7 @@ class ObservationBatch:
         arrays["finger_positions"] = np.stack([o.finger_positions for o in observations])
         arrays["step"] = np.array([o.step for o in observations], np.float32)
         if scene_bounds is not None:
-            arrays["scene_bounds"] = np.broadcast_to(np.asarray(scene_bounds, np.float32), (len(observations), 6))
+            arrays[SCENE_BOUNDS] = np.broadcast_to(np.asarray(scene_bounds, np.float32), (len(observations), 6))
         return cls.from_arrays(arrays, cameras, device)
 
 
@@ -105,7 +111,8 @@ class TransitionBatch:
     voxel_indices: torch.Tensor | None = None  #: long [B, D, 3] act-time choices (optional)
     attention_coordinates: torch.Tensor | None = None  #: float32 [B, D, 3] act-time cube centres (optional)
     rot_grip_indices: torch.Tensor | None = None  #: long [B, 4] act-time bins (optional)
-    n_rewards: torch.Tensor | None = None  #: float32 [B, n] rewards of an n-step transition, zero past its end (optional)
+    #: float32 [B, n] rewards of an n-step transition, zero past its end (optional)
+    n_rewards: torch.Tensor | None = None
     bootstrap_steps: torch.Tensor | None = None  #: long [B] decisions from obs to next_obs, 1..n (optional)
     extras: dict[str, torch.Tensor] = field(default_factory=dict)
 
@@ -115,21 +122,21 @@ class TransitionBatch:
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], cameras, device="cpu") -> "TransitionBatch":
-        b = len(arrays["action"])
+        b = len(arrays[tr.ACTION])
         opt = lambda k, dtype: _t(arrays[k], device, dtype) if k in arrays else None  # noqa: E731
-        weights = arrays.get("weights")
+        weights = arrays.get(tr.WEIGHTS)
         return cls(
             obs=ObservationBatch.from_arrays(arrays, cameras, device),
-            next_obs=ObservationBatch.from_arrays(arrays, cameras, device, suffix="_tp1"),
-            action=_t(arrays["action"], device, torch.float32),
-            reward=_t(arrays["reward"], device, torch.float32).reshape(-1),
-            terminal=_t(arrays["terminal"], device, torch.bool).reshape(-1),
-            is_demo=_t(arrays.get("is_demo", np.zeros(b, bool)), device, torch.bool).reshape(-1),
+            next_obs=ObservationBatch.from_arrays(arrays, cameras, device, suffix=tr.NEXT),
+            action=_t(arrays[tr.ACTION], device, torch.float32),
+            reward=_t(arrays[tr.REWARD], device, torch.float32).reshape(-1),
+            terminal=_t(arrays[tr.TERMINAL], device, torch.bool).reshape(-1),
+            is_demo=_t(arrays.get(tr.IS_DEMO, np.zeros(b, bool)), device, torch.bool).reshape(-1),
             weights=_t(np.ones(b, np.float32) if weights is None else weights, device, torch.float32).reshape(-1),
-            policy_version=opt("policy_version", torch.int64),
-            voxel_indices=opt("voxel_indices", torch.int64),
-            attention_coordinates=opt("attention_coordinates", torch.float32),
-            rot_grip_indices=opt("rot_grip_indices", torch.int64),
-            n_rewards=opt("rewards", torch.float32),
-            bootstrap_steps=opt("bootstrap_steps", torch.int64),
+            policy_version=opt(tr.POLICY_VERSION, torch.int64),
+            voxel_indices=opt(tr.label_name("voxel_indices"), torch.int64),
+            attention_coordinates=opt(tr.label_name("attention_coordinates"), torch.float32),
+            rot_grip_indices=opt(tr.label_name("rot_grip_indices"), torch.int64),
+            n_rewards=opt(tr.N_REWARDS, torch.float32),
+            bootstrap_steps=opt(tr.BOOTSTRAP_STEPS, torch.int64),
         )

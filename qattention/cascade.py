@@ -48,6 +48,17 @@ class ActResult:
         }
 
 
+def depth_grid(obs: ObservationBatch, config, centre: torch.Tensor | None, bounds: torch.Tensor) -> torch.Tensor:
+    """The voxel grid one depth of the cascade sees [B, 10, V, V, V]: the points around ``centre``
+    (an image crop, or every pixel at depth 0 where ``centre`` is None) voxelised in ``bounds`` [B, 6].
+
+    Acting, the TD targets, the update and the dashboard's snapshot all look through this one
+    function, so a depth sees the same grid wherever it is evaluated.
+    """
+    points, rgb = gather_points(obs, config.cameras, centre, config.image_crop)
+    return voxelise(points, rgb, bounds, config.voxel_size)
+
+
 def split_rot_grip(q_rot_grip: torch.Tensor, bins: int):
     """[B, 3*bins+2] -> rotation Q [B, 3, bins], gripper Q [B, 2]."""
     return q_rot_grip[:, : 3 * bins].reshape(-1, 3, bins), q_rot_grip[:, 3 * bins :]
@@ -70,9 +81,7 @@ def descend(
     centre = None
     idxs, coords, all_bounds, qs = [], [], [], []
     for d in range(config.depths):
-        points, rgb = gather_points(obs, config.cameras, centre, config.image_crop)
-        grid = voxelise(points, rgb, bounds, v)
-        q_trans, q_rg = q_functions[d](grid, proprio)
+        q_trans, q_rg = q_functions[d](depth_grid(obs, config, centre, bounds), proprio)
         idx = unflatten_index(q_trans.reshape(b, -1).argmax(1), v)
         if explore:
             idx = explore_voxel(idx, config, generator)

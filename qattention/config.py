@@ -1,11 +1,12 @@
 """Typed configuration of the Q-attention cascade, plus the two presets.
 
 Defaults are the reference's (``conf/method/C2FARM.yaml``); ``paper()`` returns them,
-``cpu_small()`` trades width and precision for speed on a 2-core CPU (numbers in README.md).
+``cpu_small()`` trades width and precision for speed on a 2-core CPU (numbers in BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
 from typing import Literal
 
@@ -15,54 +16,76 @@ LOW_DIM_SIZE = 11
 
 @dataclass(frozen=True)
 class QAttentionConfig:
-    voxel_size: int = 16  #: voxels per axis at every depth (V)
-    depths: int = 2  #: number of coarse-to-fine depths (one network each)
-    scene_bounds: tuple[float, ...] = (-0.3, -0.5, 0.6, 0.7, 0.5, 1.6)  #: depth-0 box (xmin,ymin,zmin,xmax,ymax,zmax); per-task, overwritten by sim/learner
-    bounds_offset: float | tuple[float, ...] = 0.15  #: half-width of the depth d>=1 cube (one value, or one per depth>=1)
-    rotation_resolution: int = 5  #: degrees per Euler bin (72 bins per axis at 5)
-    kernels: int = 64  #: encoder width K (levels K, 2K, 4K); reference 64
-    head_width: int = 128  #: width of the two hidden layers of the rotation/gripper MLP; reference 128
+    voxel_size: int = 16  #: voxels per axis at every depth (V), a power of two >= 4
+    depths: int = 2  #: number of coarse-to-fine depths (one network each), >= 1
+    #: depth-0 box (xmin,ymin,zmin,xmax,ymax,zmax), min < max; per-task, overwritten by sim/learner
+    scene_bounds: tuple[float, ...] = (-0.3, -0.5, 0.6, 0.7, 0.5, 1.6)
+    #: half-width of the depth d>=1 cube, > 0 (one value, or one per depth>=1)
+    bounds_offset: float | tuple[float, ...] = 0.15
+    rotation_resolution: int = 5  #: degrees per Euler bin, a divisor of 360 (72 bins per axis at 5)
+    kernels: int = 64  #: encoder width K (levels K, 2K, 4K), >= 1; reference 64
+    head_width: int = 128  #: width of the two hidden layers of the rotation/gripper MLP, >= 1; reference 128
     padding: Literal["zeros", "replicate"] = "replicate"  #: conv padding mode; reference 'replicate'
-    bf16: bool | Literal["auto"] = "auto"  #: bf16 autocast of the networks (loss stays fp32); "auto" = on where the device has native bf16 (precision.py)
-    cameras: tuple[str, ...] = ("front",)  #: camera names fused into one grid
-    image_crop: int = 64  #: crop size (px) of non-wrist images at depth>=1; 0 = off, 64 = reference
-    episode_length: int = 10  #: max decisions per episode (time feature of the proprioception)
-    lr: float = 5e-4  #: Adam learning rate
-    weight_decay: float = 1e-6  #: Adam (coupled L2) weight decay
-    tau: float = 0.0025  #: soft target update rate, applied every update
-    gamma: float = 0.99  #: discount
-    grad_clip: float = 0.01  #: element-wise gradient clip by value
-    lambda_trans_qreg: float = 1.0  #: L1 regulariser weight on all translation Q-values
-    lambda_rot_qreg: float = 1.0  #: L1 regulariser weight on all rotation/gripper Q-values
-    per_alpha: float = 0.7  #: PER exponent applied to the returned priorities
-    demo_margin: float = 0.0  #: large-margin loss on demo rows (DQfD): every other choice's Q must sit this far below the demo's, per head; 0 = off, as the reference
-    lambda_demo_margin: float = 1.0  #: weight of the demo margin loss beside the TD loss
+    #: bf16 autocast of the networks (loss stays fp32); "auto" = on where the device has native bf16 (precision.py)
+    bf16: bool | Literal["auto"] = "auto"
+    cameras: tuple[str, ...] = ("front",)  #: camera names fused into one grid, at least one, each once
+    image_crop: int = 64  #: crop size (px, >= 0) of non-wrist images at depth>=1; 0 = off, 64 = reference
+    episode_length: int = 10  #: max decisions per episode (time feature of the proprioception), >= 1
+    lr: float = 5e-4  #: Adam learning rate, > 0
+    weight_decay: float = 1e-6  #: Adam (coupled L2) weight decay, >= 0
+    tau: float = 0.0025  #: soft target update rate, applied every update, in (0, 1]
+    gamma: float = 0.99  #: discount, in [0, 1]
+    grad_clip: float = 0.01  #: element-wise gradient clip by value, > 0
+    lambda_trans_qreg: float = 1.0  #: L1 regulariser weight on all translation Q-values, >= 0
+    lambda_rot_qreg: float = 1.0  #: L1 regulariser weight on all rotation/gripper Q-values, >= 0
+    per_alpha: float = 0.7  #: PER exponent applied to the returned priorities, in [0, 1]
+    #: large-margin loss on demo rows (DQfD): every other choice's Q must sit this far below the demo's, per head; 0 =
+    #: off, as the reference
+    demo_margin: float = 0.0
+    lambda_demo_margin: float = 1.0  #: weight of the demo margin loss beside the TD loss, >= 0
     crop_augmentation: bool = True  #: shift the depth>=1 cube centre of demo transitions at label time
-    crop_shift: float = 0.75  #: max shift per axis as a fraction of bounds_offset
-    demo_yaw_augmentation: float = 0.0  #: max |yaw| (deg) by which each sampled demo row's scene, gripper and action turn about the vertical through the action (yaw_augmentation.py); 0 = off, as the reference
-    reward_scale: float = 0.01  #: reward multiplier before the TD target (100 -> 1)
-    epsilon: float = 0.0  #: exploration probability per depth / rotation axis / gripper (0.0 = greedy, as reference)
+    crop_shift: float = 0.75  #: max shift per axis as a fraction of bounds_offset, in [0, 1]
+    #: max |yaw| (deg, in [0, 180]) by which each sampled demo row's scene, gripper and action turn about the vertical
+    #: through the action (yaw_augmentation.py); 0 = off, as the reference
+    demo_yaw_augmentation: float = 0.0
+    reward_scale: float = 0.01  #: reward multiplier before the TD target (100 -> 1), > 0
+    #: exploration probability per depth / rotation axis / gripper, in [0, 1] (0.0 = greedy, as reference)
+    epsilon: float = 0.0
     exploration: Literal["gaussian", "uniform"] = "gaussian"  #: 'gaussian' = local jitter, 'uniform' = any voxel / bin
-    explore_voxel_sigma: float = 1.5  #: std (voxels) of the gaussian voxel jitter
-    explore_rotation_sigma: float = 3.0  #: std (bins) of the gaussian rotation-bin jitter
+    explore_voxel_sigma: float = 1.5  #: std (voxels, >= 0) of the gaussian voxel jitter
+    explore_rotation_sigma: float = 3.0  #: std (bins, >= 0) of the gaussian rotation-bin jitter
 
     def __post_init__(self) -> None:
+        # Messages as protocol/config_checks.py's ("<field> must be <rule> (got <value>)"), kept
+        # local: qattention/ imports nothing from the service around it.
         if len(self.scene_bounds) != 6:
             raise ValueError("scene_bounds needs 6 floats (min xyz, max xyz)")
+        _range(self, None, None, "scene_bounds")
+        if not all(lo < hi for lo, hi in zip(self.scene_bounds[:3], self.scene_bounds[3:])):
+            raise ValueError(f"scene_bounds must have min < max on every axis (got {self.scene_bounds})")
         if self.voxel_size < 4 or self.voxel_size & (self.voxel_size - 1):
-            raise ValueError("voxel_size must be a power of two >= 4")
+            raise ValueError(f"voxel_size must be a power of two >= 4 (got {self.voxel_size})")
+        _range(self, 1, None, "depths", "kernels", "head_width", "episode_length")
+        _range(self, 0, None, "bounds_offset", open_low=True)
+        if isinstance(self.bounds_offset, (list, tuple)) and len(self.bounds_offset) < self.depths - 1:
+            raise ValueError("bounds_offset needs one value per depth >= 1")
+        _range(self, 1, 360, "rotation_resolution")
         if 360 % self.rotation_resolution:
-            raise ValueError("rotation_resolution must divide 360")
+            raise ValueError(f"rotation_resolution must divide 360 (got {self.rotation_resolution})")
         if self.bf16 not in (True, False, "auto"):
             raise ValueError(f"bf16 must be true, false or 'auto', not {self.bf16!r}")
         if self.padding not in ("zeros", "replicate"):
             raise ValueError(f"padding must be 'zeros' or 'replicate', not {self.padding!r}")
-        if not 0 <= self.demo_yaw_augmentation <= 180:
-            raise ValueError("demo_yaw_augmentation must be between 0 and 180 degrees")
-        if self.demo_margin < 0 or self.lambda_demo_margin < 0:
-            raise ValueError("demo_margin and lambda_demo_margin must be >= 0")
-        if isinstance(self.bounds_offset, (list, tuple)) and len(self.bounds_offset) < self.depths - 1:
-            raise ValueError("bounds_offset needs one value per depth >= 1")
+        if self.exploration not in ("gaussian", "uniform"):
+            raise ValueError(f"exploration must be 'gaussian' or 'uniform', not {self.exploration!r}")
+        if not self.cameras or len(set(self.cameras)) != len(self.cameras):
+            raise ValueError(f"cameras must name at least one camera, each once (got {list(self.cameras)})")
+        _range(self, 0, None, "lr", "grad_clip", "reward_scale", open_low=True)
+        _range(self, 0, None, "image_crop", "weight_decay", "lambda_trans_qreg", "lambda_rot_qreg", "demo_margin",
+               "lambda_demo_margin", "explore_voxel_sigma", "explore_rotation_sigma")
+        _range(self, 0, 1, "tau", open_low=True)
+        _range(self, 0, 1, "gamma", "per_alpha", "crop_shift", "epsilon")
+        _range(self, 0, 180, "demo_yaw_augmentation")
 
     @property
     def rotation_bins(self) -> int:
@@ -92,11 +115,35 @@ class QAttentionConfig:
         return cls(**d)
 
 
+def _range(cfg, low, high, *names: str, open_low: bool = False, open_high: bool = False) -> None:
+    """Each named field (each item of a tuple field) is finite and within [low, high] (None: unbounded)."""
+    for name in names:
+        value = getattr(cfg, name)
+        items = (
+            [(f"{name}[{i}]", v) for i, v in enumerate(value)] if isinstance(value, (list, tuple)) else [(name, value)]
+        )
+        for where, v in items:
+            ok = low is None or (v > low if open_low else v >= low)
+            ok = ok and (high is None or (v < high if open_high else v <= high))
+            if ok and math.isfinite(v):
+                continue
+            if low is None and high is None:
+                rule = "a finite number"
+            elif high is None:
+                rule = f"{'>' if open_low else '>='} {low}"
+            elif str(type(cfg).__dataclass_fields__[name].type) == "int" and not (open_low or open_high):
+                rule = f"in {low}..{high}"
+            else:
+                rule = f"in {'(' if open_low else '['}{low}, {high}{')' if open_high else ']'}"
+            finite = "finite and " if low is not None and high is None and not math.isfinite(v) else ""
+            raise ValueError(f"{where} must be {finite}{rule} (got {v!r})")
+
+
 def paper() -> QAttentionConfig:
     """The paper / reference: 2 x 16^3, K=64, replicate padding (meant for a GPU learner; bf16 where native)."""
     return QAttentionConfig()
 
 
 def cpu_small() -> QAttentionConfig:
-    """What fits a 2-core CPU: K=32, zero padding, bf16 where native, the demo margin (BENCHMARKS.md has the measurements)."""
+    """What fits a 2-core CPU: K=32, zero padding, bf16 where native, the demo margin (measured in BENCHMARKS.md)."""
     return QAttentionConfig(kernels=32, head_width=64, padding="zeros", demo_margin=0.1)

@@ -58,8 +58,8 @@ def top_rotations(q_rot: torch.Tensor, k: int, separation: int = 1) -> tuple[tor
     values = [q_rot[axis, b] for axis, b in enumerate(per_axis)]
     score = (values[0][:, None, None] + values[1][None, :, None] + values[2][None, None, :]) / 3
     best = score.reshape(-1).topk(min(k, score.numel()))
-    i, j, l = np.unravel_index(best.indices.cpu().numpy(), n)
-    return torch.stack([per_axis[0][i], per_axis[1][j], per_axis[2][l]], 1), best.values
+    i, j, m = np.unravel_index(best.indices.cpu().numpy(), n)
+    return torch.stack([per_axis[0][i], per_axis[1][j], per_axis[2][m]], 1), best.values
 
 
 def inside_workspace(bounds: torch.Tensor, voxel_size: int, workspace: torch.Tensor) -> torch.Tensor:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from protocol import transition as tr
+
 from .rotation import euler_to_quaternion
 
 CAMERA_POSITIONS = {
@@ -94,21 +96,23 @@ def observation_arrays(
     return out
 
 
-def transition_arrays(batch: int, cameras=("front",), resolution: int = 128, seed: int = 0, **kw) -> dict[str, np.ndarray]:
+def transition_arrays(
+    batch: int, cameras=("front",), resolution: int = 128, seed: int = 0, **kw
+) -> dict[str, np.ndarray]:
     """A replay-style transition batch: the action is a pose at the sphere (reward 100, terminal) in
     half the rows, elsewhere a random pose with reward 0."""
     rng = np.random.default_rng(seed + 1)
     out = observation_arrays(batch, cameras, resolution, seed=seed, **kw)
-    out.update(observation_arrays(batch, cameras, resolution, seed=seed + 2, suffix="_tp1", **kw))
+    out.update(observation_arrays(batch, cameras, resolution, seed=seed + 2, suffix=tr.NEXT, **kw))
     success = np.arange(batch) % 2 == 0
     action = np.concatenate([out["gripper_pose"], rng.integers(0, 2, (batch, 1)).astype(np.float32)], 1)
     bounds = np.asarray(kw.get("scene_bounds", (-0.3, -0.5, 0.6, 0.7, 0.5, 1.6)))
     random_xyz = rng.uniform(bounds[:3], bounds[3:], (batch, 3))
     action[~success, :3] = random_xyz[~success]
-    out["action"] = action.astype(np.float32)
-    out["reward"] = np.where(success, 100.0, 0.0).astype(np.float32)
-    out["terminal"] = success.copy()
-    out["is_demo"] = success.copy()
-    out["weights"] = np.ones(batch, np.float32)
-    out["policy_version"] = np.zeros(batch, np.int64)
+    out[tr.ACTION] = action.astype(np.float32)
+    out[tr.REWARD] = np.where(success, 100.0, 0.0).astype(np.float32)
+    out[tr.TERMINAL] = success.copy()
+    out[tr.IS_DEMO] = success.copy()
+    out[tr.WEIGHTS] = np.ones(batch, np.float32)
+    out[tr.POLICY_VERSION] = np.zeros(batch, np.int64)
     return out

@@ -67,7 +67,9 @@ def _turn_observation(obs: ObservationBatch, rows: torch.Tensor, centre, angle) 
     )
 
 
-def augment_yaw(batch: TransitionBatch, max_degrees: float, generator: torch.Generator | None = None) -> TransitionBatch:
+def augment_yaw(
+    batch: TransitionBatch, max_degrees: float, generator: torch.Generator | None = None
+) -> TransitionBatch:
     """The batch with every demo row turned by its own uniform yaw in +-``max_degrees`` (agent rows untouched)."""
     if max_degrees <= 0 or not bool(batch.is_demo.any()):
         return batch

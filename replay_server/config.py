@@ -10,14 +10,19 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Literal, Optional
 
+from protocol.config_checks import above, at_least, non_empty, one_of, within, zmq_endpoint
+
+#: zstd's compression levels (negative ones trade ratio for speed; 0 = zstd's default, 3).
+ZSTD_LEVELS = (-(1 << 17), 22)
+
 
 @dataclass
 class ReplayConfig:
     """Settings of the replay server process."""
 
-    # ZeroMQ endpoint the ROUTER sample service binds (the learner's DEALER connects to it).
+    # ZeroMQ endpoint the ROUTER sample service binds (the learner's DEALER connects to it): tcp://HOST:PORT, ipc:// or inproc://.
     zmq_endpoint: str = "tcp://127.0.0.1:5560"
-    # Capacity in transitions; the oldest episodes are evicted first beyond it.
+    # Capacity in transitions, >= 1; the oldest episodes are evicted first beyond it.
     capacity_transitions: int = 100_000
     # Capacity in stored bytes (after compression); the oldest episodes are evicted first beyond it.
     capacity_bytes: int = 8 * 1024**3
@@ -25,37 +30,40 @@ class ReplayConfig:
     keep_demos: bool = True
     # Per-frame compression of image/point arrays in memory and in checkpoints.
     compression: Literal["none", "lz4", "zstd"] = "none"
-    # zstd level (only used when compression == "zstd").
+    # zstd level (only used when compression == "zstd"), -131072..22.
     zstd_level: int = 1
     # Store float32 point clouds as float16 (RGB is always uint8 on the wire already).
     points_float16: bool = True
-    # Exponent applied by the server to learner priorities (1.0: the learner already applied alpha).
+    # Exponent applied by the server to learner priorities, in [0, 1] (1.0: the learner already applied alpha).
     priority_alpha: float = 1.0
-    # Importance-sampling exponent: w = (N * P(i)) ** -beta / max over the batch (0.5 = reference).
+    # Importance-sampling exponent in [0, 1]: w = (N * P(i)) ** -beta / max over the batch (0.5 = reference).
     importance_beta: float = 0.5
-    # Floor for updated priorities so that no item becomes unsampleable by accident.
+    # Floor for updated priorities (> 0) so that no item becomes unsampleable by accident.
     priority_eps: float = 1e-6
-    # Priority of the very first items (new items get the running max of all priorities set).
+    # Priority of the very first items, > 0 (new items get the running max of all priorities set).
     initial_priority: float = 1.0
-    # Fraction of every batch drawn from demo transitions when the replay holds both demos and agent data; 0 = one proportional table over everything (the reference).
+    # Fraction of every batch drawn from demo transitions when the replay holds both demos and agent data; 0 = one
+    # proportional table over everything (the reference).
     demo_fraction: float = 0.0
-    # Serve n-step transitions: the next observation n decisions later (or at the episode's end) and the n rewards between; 1 = one-step (the reference).
+    # Serve n-step transitions: the next observation n decisions later (or at the episode's end) and the n rewards
+    # between; 1 = one-step (the reference).
     n_step: int = 1
-    # Minimum stored transitions before any batch is served.
+    # Minimum stored transitions before any batch is served, >= 1 (a run also wants it <= capacity_transitions).
     min_size_to_sample: int = 1_000
-    # Target sampled transitions per inserted transition (Reverb SampleToInsertRatio); 0 disables.
+    # Target sampled transitions per inserted transition (Reverb SampleToInsertRatio), >= 0; 0 disables.
     samples_per_insert: float = 0.0
-    # Allowed deviation (in sampled transitions) from the target ratio; must be >= the batch size.
+    # Allowed deviation (in sampled transitions) from the target ratio; with samples_per_insert > 0 it must be >= max(1,
+    # samples_per_insert) and >= learner.batch_size.
     samples_per_insert_error_buffer: float = 10_000.0
-    # Longest wait (s) of a sample request on the rate limiter before an error reply (also capped by the request).
+    # Longest wait (s, > 0) of a sample request on the rate limiter before an error reply (also capped by the request).
     sample_wait_timeout_s: float = 10.0
     # Throttle inserts too when sampling falls behind the ratio (False: only sampling is throttled).
     limit_inserts: bool = False
-    # Longest wait (s) of an insert on the rate limiter; after it the episode is stored anyway and counted.
+    # Longest wait (s, > 0) of an insert on the rate limiter; after it the episode is stored anyway and counted.
     insert_wait_timeout_s: float = 5.0
-    # ZeroMQ send high-water mark (messages = batches) of the ROUTER socket.
+    # ZeroMQ send high-water mark (messages = batches) of the ROUTER socket, >= 0 (0 = no limit).
     zmq_sndhwm: int = 8
-    # ZeroMQ receive high-water mark (messages) of the ROUTER socket.
+    # ZeroMQ receive high-water mark (messages) of the ROUTER socket, >= 0 (0 = no limit).
     zmq_rcvhwm: int = 256
     # Largest accepted episode message in bytes; larger ones are rejected and counted.
     max_episode_bytes: int = 256 * 1024**2
@@ -63,7 +71,8 @@ class ReplayConfig:
     ingest_queue_size: int = 64
     # Most bytes waiting between the Zenoh callback and the ingest thread.
     ingest_queue_bytes: int = 512 * 1024**2
-    # Longest wait (s) of the Zenoh callback on a full ingest queue; then the episode is dropped unacked (the actor resends).
+    # Longest wait (s, > 0) of the Zenoh callback on a full ingest queue; then the episode is dropped unacked (the actor
+    # resends).
     ingest_put_timeout_s: float = 2.0
     # Most episodes committed together (one write-ahead-log fsync for all of them).
     ingest_batch_max: int = 32
@@ -91,15 +100,18 @@ class ReplayConfig:
     max_episode_steps: int = 1000
     # Most cameras in one episode; more are rejected and counted.
     max_episode_cameras: int = 8
-    # Most episodes queued per sender (actor id of the key, or Zenoh source): beyond it its episodes are dropped unacked at once, so a flood cannot starve others.
+    # Most episodes queued per sender (actor id of the key, or Zenoh source): beyond it its episodes are dropped unacked
+    # at once, so a flood cannot starve others.
     ingest_sender_queue_size: int = 16
     # Most bytes queued per sender (see ingest_sender_queue_size).
     ingest_sender_queue_bytes: int = 256 * 1024**2
-    # Seconds an actor id stays bound to the Zenoh source (session id, when samples carry one) that last stored under it; claims from another source meanwhile are impersonation. Released at once when the actor's liveliness token goes (a restarted actor gets its id back); the TTL covers a lost DELETE.
+    # Seconds (> 0) an actor id stays bound to the Zenoh source (session id, when samples carry one) that last stored
+    # under it; claims from another source meanwhile are impersonation. Released at once when the actor's liveliness
+    # token goes (a restarted actor gets its id back); the TTL covers a lost DELETE.
     identity_bind_ttl_s: float = 15.0
-    # Seconds between two log lines about the same rejection reason (the rest are only counted).
+    # Seconds between two log lines about the same rejection reason (the rest are only counted), >= 0.
     reject_log_interval_s: float = 5.0
-    # Seconds between periodic checkpoints; 0 disables periodic checkpoints.
+    # Seconds between periodic checkpoints, >= 0; 0 disables periodic checkpoints.
     checkpoint_interval_s: float = 600.0
     # Number of complete checkpoints kept on disk.
     checkpoint_keep: int = 2
@@ -107,15 +119,15 @@ class ReplayConfig:
     # log, else only while the store is at most stop_checkpoint_max_bytes (the WAL already holds
     # every stored episode, and a multi-GB write would outlast the launcher's stop grace).
     checkpoint_on_stop: bool = True
-    # Largest store (bytes) checkpointed on stop when the write-ahead log is on (~1 s here).
+    # Largest store (bytes, >= 0) checkpointed on stop when the write-ahead log is on (~1 s here).
     stop_checkpoint_max_bytes: int = 256 * 2**20
     # Restore the latest complete checkpoint (and replay the write-ahead log) at start.
     restore_on_start: bool = True
-    # Checkpoint/WAL directory override; None means ctx.run_dir / "replay".
+    # Checkpoint/WAL directory override (a non-empty path); None means ctx.run_dir / "replay".
     checkpoint_dir: Optional[str] = None
-    # Random seed for sampling (None: derived from the role context seed).
+    # Random seed for sampling, >= 0 (None: derived from the role context seed).
     seed: Optional[int] = None
-    # Seconds between status messages (Heartbeat period).
+    # Seconds between status messages (Heartbeat period), > 0.
     status_interval_s: float = 1.0
 
     def __post_init__(self) -> None:
@@ -123,15 +135,25 @@ class ReplayConfig:
 
     def validate(self) -> None:
         """Raise ValueError for a setting no replay can run with (also after ``apply_overrides``)."""
-        if not 0.0 <= self.demo_fraction <= 1.0:
-            raise ValueError(f"demo_fraction must be in [0, 1] (the demo share of each batch), got {self.demo_fraction}")
-        if not 1 <= self.n_step <= 64:
-            raise ValueError(f"n_step must be in 1..64 (decisions per return), got {self.n_step}")
-        for name in ("max_batch_size", "max_batch_bytes", "max_pending_requests", "max_pending_per_client",
-                     "max_request_bytes", "max_episode_steps", "max_episode_cameras", "max_episode_bytes",
-                     "ingest_sender_queue_size", "ingest_sender_queue_bytes", "dedup_window", "dedup_max_actors"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        zmq_endpoint(self, "zmq_endpoint")
+        one_of(self, "compression", ("none", "lz4", "zstd"))
+        within(self, *ZSTD_LEVELS, "zstd_level")
+        at_least(self, 1, "capacity_transitions", "capacity_bytes", "min_size_to_sample", "ingest_queue_size",
+                 "ingest_queue_bytes", "ingest_batch_max", "wal_checkpoint_bytes", "checkpoint_keep",
+                 "max_batch_size", "max_batch_bytes", "max_pending_requests", "max_pending_per_client",
+                 "max_request_bytes", "max_episode_steps", "max_episode_cameras", "max_episode_bytes",
+                 "ingest_sender_queue_size", "ingest_sender_queue_bytes", "dedup_window", "dedup_max_actors")
+        at_least(self, 0, "zmq_sndhwm", "zmq_rcvhwm", "stop_checkpoint_max_bytes", "seed", "samples_per_insert",
+                 "samples_per_insert_error_buffer", "checkpoint_interval_s", "reject_log_interval_s")
+        within(self, 0, 1, "priority_alpha", "importance_beta", "demo_fraction")
+        above(self, 0, "priority_eps", "initial_priority", "sample_wait_timeout_s", "insert_wait_timeout_s",
+              "ingest_put_timeout_s", "identity_bind_ttl_s", "status_interval_s")
+        within(self, 1, 64, "n_step")
+        non_empty(self, "checkpoint_dir")
+        if self.samples_per_insert > 0 and self.samples_per_insert_error_buffer < max(1.0, self.samples_per_insert):
+            raise ValueError(f"samples_per_insert_error_buffer must be >= max(1, samples_per_insert) = "
+                             f"{max(1.0, self.samples_per_insert):g} when samples_per_insert > 0, or the rate "
+                             f"limiter deadlocks (got {self.samples_per_insert_error_buffer})")
 
 
 def apply_overrides(config: ReplayConfig, items: list[str]) -> ReplayConfig:

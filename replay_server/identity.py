@@ -12,7 +12,7 @@ On an unauthenticated fabric an id is only a claim. Two things make claims check
   restarted actor (a new session id) gets its id back at once; otherwise (a token that
   never existed, or a lost DELETE) it expires after ``ttl_s``. source_info is
   itself sent by the publisher, so this stops mistakes and casual spoofing, not a
-  determined attacker: that needs Zenoh TLS and access control (see README "Trust").
+  determined attacker: that needs Zenoh TLS and access control (see docs/trust.md).
 """
 from __future__ import annotations
 

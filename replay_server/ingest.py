@@ -189,8 +189,12 @@ class Ingest:
     def _admit(self, item: Received, seen: set, acks: list) -> Optional[Accepted]:
         cfg, state = self.config, self.state
         if item.raw is None:
-            self._reject(item, "too_large", f"message of {item.size} bytes exceeds max_episode_bytes={cfg.max_episode_bytes}",
-                         acks)
+            self._reject(
+                item,
+                "too_large",
+                f"message of {item.size} bytes exceeds max_episode_bytes={cfg.max_episode_bytes}",
+                acks,
+            )
             return None
         try:
             ep = decode_episode(item.raw, cfg, self.limits)
@@ -214,8 +218,12 @@ class Ingest:
             self._reject(item, "too_large" if "capacity" in reason else "schema", reason, acks)
             return None
         if conflict:  # stored anyway: refusing it would let whoever sent first suppress the other
-            self.suspect.count("id_conflict", f"episode {ep.episode_id} of {ep.actor_id!r} arrived with another "
-                               "payload than the one stored (impersonation, or an actor reusing ids)", sender=item.actor)
+            self.suspect.count(
+                "id_conflict",
+                f"episode {ep.episode_id} of {ep.actor_id!r} arrived with another "
+                "payload than the one stored (impersonation, or an actor reusing ids)",
+                sender=item.actor,
+            )
         seen.add((ep.key, digest))
         return Accepted(ep, item, digest)
 
@@ -271,6 +279,8 @@ class Ingest:
             if time.monotonic() >= deadline or self._stop.is_set():
                 state.stats["insert_wait_timeouts"] += 1
                 state.info["insert_wait"] = f"stored after waiting {cfg.insert_wait_timeout_s}s: {reason}"
-                log.warning("insert waited %.1fs on the rate limiter and goes ahead: %s", cfg.insert_wait_timeout_s, reason)
+                log.warning(
+                    "insert waited %.1fs on the rate limiter and goes ahead: %s", cfg.insert_wait_timeout_s, reason
+                )
                 return
             time.sleep(0.005)

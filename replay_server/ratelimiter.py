@@ -17,7 +17,8 @@ class RateLimiter:
             raise ValueError("samples_per_insert must be >= 0")
         if samples_per_insert > 0 and error_buffer < max(1.0, samples_per_insert):
             raise ValueError(
-                f"samples_per_insert_error_buffer={error_buffer} is narrower than max(1, spi)={max(1.0, samples_per_insert)}: "
+                f"samples_per_insert_error_buffer={error_buffer} is narrower than "
+                f"max(1, spi)={max(1.0, samples_per_insert)}: "
                 "that deadlocks (Reverb rejects such windows too); it should also be >= the batch size"
             )
         self.spi = float(samples_per_insert)

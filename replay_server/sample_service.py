@@ -20,6 +20,7 @@ from typing import Optional
 import numpy as np
 import zmq
 
+from protocol import transition as tr
 from protocol.codec import ProtocolError, peek_fields
 from protocol.messages import PriorityUpdate, SampleBatch, SampleRequest, decode
 from protocol.sample_wire import RETRY_PREFIX, batch_frames
@@ -162,8 +163,16 @@ class SampleService:
         nbytes = self._batch_bytes(req.batch_size)
         if nbytes > cfg.max_batch_bytes:
             self.rejected.count("batch_bytes_too_large", f"a batch of {req.batch_size} is ~{nbytes} bytes")
-            self._send(ident, SampleBatch(req.request_id, {}, f"refused: a batch of {req.batch_size} would be "
-                                                             f"~{nbytes} bytes, more than max_batch_bytes={cfg.max_batch_bytes}", {}))
+            self._send(
+                ident,
+                SampleBatch(
+                    req.request_id,
+                    {},
+                    f"refused: a batch of {req.batch_size} would be "
+                    f"~{nbytes} bytes, more than max_batch_bytes={cfg.max_batch_bytes}",
+                    {},
+                ),
+            )
             return
         if len(self._pending) >= cfg.max_pending_requests:
             self.rejected.count("pending_total", f"{len(self._pending)} requests waiting")
@@ -171,7 +180,10 @@ class SampleService:
             return
         if self._per_client[ident] >= cfg.max_pending_per_client:
             self.rejected.count("pending_per_client", f"client has {self._per_client[ident]} requests waiting")
-            self._send(ident, SampleBatch(req.request_id, {}, f"{RETRY_PREFIX}: too many requests waiting from this client", {}))
+            self._send(
+                ident,
+                SampleBatch(req.request_id, {}, f"{RETRY_PREFIX}: too many requests waiting from this client", {}),
+            )
             return
         wait = max(0.0, min(req.timeout_ms / 1000.0, cfg.sample_wait_timeout_s))
         self._per_client[ident] += 1
@@ -213,7 +225,9 @@ class SampleService:
                 with self.state.store_lock:
                     reason = reason or self.state.limiter.sample_block_reason(req.batch_size, self.state.store.size)
                 self.state.stats["sample_timeouts"] += 1
-                self._send(ident, SampleBatch(req.request_id, {}, f"{RETRY_PREFIX}: no batch within {wait:.1f}s: {reason}", {}))
+                self._send(
+                    ident, SampleBatch(req.request_id, {}, f"{RETRY_PREFIX}: no batch within {wait:.1f}s: {reason}", {})
+                )
                 self._done(ident)
             else:
                 keep.append((ident, req, deadline, wait))
@@ -225,12 +239,12 @@ class SampleService:
             reason = state.limiter.sample_block_reason(req.batch_size, state.store.size)
             if reason or state.store.size == 0:
                 return False, reason or "the replay is empty"
-            slots, item_keys, probs, weights, episodes, ts = state.store.sample(
-                req.batch_size, state.rng, cfg.importance_beta, cfg.demo_fraction)
+            items = state.store.sample(req.batch_size, state.rng, cfg.importance_beta, cfg.demo_fraction)
             state.limiter.samples += req.batch_size
-            info = self._batch_info(episodes)
-        arrays = state.store.gather(episodes, ts)  # stored episodes are immutable: no lock needed
-        arrays.update(indices=slots, keys=item_keys, weights=weights, probabilities=probs)
+            info = self._batch_info(items.episodes)
+        arrays = state.store.gather(items.episodes, items.ts)  # stored episodes are immutable: no lock needed
+        arrays.update({tr.INDICES: items.slots, tr.KEYS: items.keys, tr.WEIGHTS: items.weights,
+                       tr.PROBABILITIES: items.probabilities})
         self._send(ident, SampleBatch(req.request_id, arrays, "", info))
         state.stats["batches_served"] += 1
         return True, ""

@@ -2,7 +2,7 @@
 
 - :mod:`replay_server.ingest`: Zenoh episodes -> validated one by one -> WAL -> store -> acks;
 - :mod:`replay_server.sample_service`: the ZeroMQ ROUTER serving batches and priority updates;
-- :mod:`replay_server.checkpointing`: restore at start, periodic / WAL-size checkpoints.
+- :mod:`replay_server.checkpointer`: restore at start, periodic / WAL-size checkpoints.
 
 They share one :class:`ReplayState` (store, rate limiter, RNG, WAL, counters, locks). Every
 thread is a daemon, stoppable, and every wait is bounded. Status counters carry everything
@@ -22,8 +22,8 @@ from protocol import keys
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
 from protocol.role import RoleContext
-from replay_server.checkpoint import CheckpointResult
-from replay_server.checkpointing import Checkpointer
+from replay_server.checkpoint_files import CheckpointResult
+from replay_server.checkpointer import Checkpointer
 from replay_server.config import ReplayConfig
 from replay_server.ingest import Ingest
 from replay_server.sample_service import SampleService
@@ -123,7 +123,7 @@ class ReplayService:
             ins, smp = limiter.inserts, limiter.samples
             sc = dict(store.counters)
             achieved = limiter.achieved()
-            dedup_actors = len(store.dedup)
+            dedup_actors = len(store.dedup.by_actor)
         t_last, ins_last, smp_last = self._rate_last
         dt = max(1e-6, now - t_last)
         self._rate_last = (now, ins, smp)

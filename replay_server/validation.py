@@ -8,11 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from protocol.codec import ProtocolError
 from protocol.episode import Episode
 from protocol.limits import DEFAULT_LIMITS, Limits
 from protocol.messages import decode
-
 from replay_server.config import ReplayConfig
 
 
@@ -24,12 +22,9 @@ def decode_limits(config: ReplayConfig, **overrides) -> Limits:
 
 
 def decode_episode(data, config: ReplayConfig, limits: Limits | None = None) -> Episode:
-    """Decode and validate one episode; raises ProtocolError only."""
-    episode = decode(data, expect=Episode, limits=limits or decode_limits(config))
-    # the protocol checked these against ``limits``; checked again in case a caller passed others
-    if episode.num_steps > config.max_episode_steps:
-        raise ProtocolError("actions", f"{episode.num_steps} steps exceeds max_episode_steps={config.max_episode_steps}")
-    if len(episode.cameras) > config.max_episode_cameras:
-        raise ProtocolError("observations",
-                            f"{len(episode.cameras)} cameras exceeds max_episode_cameras={config.max_episode_cameras}")
-    return episode
+    """Decode and validate one episode under this replay's limits; raises ProtocolError only.
+
+    This is the one check an episode gets on its way in: ``protocol`` validates every field while
+    decoding, against ``limits`` (by default :func:`decode_limits` of ``config``).
+    """
+    return decode(data, expect=Episode, limits=limits or decode_limits(config))

@@ -1,4 +1,8 @@
-"""Shared fixtures: free ports, a real Zenoh router, episodes of realistic size, process hygiene."""
+"""Shared fixtures: free ports, a real Zenoh router, process hygiene.
+
+Episodes come from the one factory, bench/synthetic_episodes.py (``from synthetic_episodes import
+synthetic_episode``: pyproject.toml puts bench/ on the tests' path), which benchmarks share.
+"""
 
 from __future__ import annotations
 
@@ -23,7 +27,6 @@ import numpy as np
 import psutil
 import pytest
 
-from protocol.episode import Episode
 from protocol.fabric import FabricConfig, open_session
 
 REPO = Path(__file__).resolve().parent.parent
@@ -66,43 +69,6 @@ def router(shm: bool):
         yield fabric
     finally:
         session.close()
-
-
-def make_episode(
-    cameras=("front",), steps: int = 10, side: int = 128, seed: int = 0, actor_id: str = "actor-0", episode_id: int = 0
-) -> Episode:
-    """A schema-valid episode of random content: T steps, T + 1 observations per camera."""
-    rng = np.random.default_rng(seed)
-    n = steps + 1
-    obs: dict[str, np.ndarray] = {}
-    for cam in cameras:
-        obs[f"{cam}_rgb"] = rng.integers(0, 256, (n, side, side, 3), dtype=np.uint8)
-        obs[f"{cam}_points"] = rng.standard_normal((n, side, side, 3)).astype(np.float16)
-        obs[f"{cam}_intrinsics"] = np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
-        obs[f"{cam}_extrinsics"] = np.tile(np.eye(4, dtype=np.float32), (n, 1, 1))
-    obs["gripper_pose"] = rng.standard_normal((n, 7)).astype(np.float32)
-    obs["gripper_open"] = np.ones(n, dtype=np.float32)
-    obs["finger_positions"] = np.full((n, 2), 0.04, dtype=np.float32)
-    obs["joint_positions"] = rng.standard_normal((n, 7)).astype(np.float32)
-    obs["joint_velocities"] = np.zeros((n, 7), dtype=np.float32)
-    obs["step"] = np.arange(n, dtype=np.int32)
-    terminals = np.zeros(steps, dtype=bool)
-    terminals[-1] = True
-    return Episode(
-        actor_id=actor_id,
-        episode_id=episode_id,
-        task="reach_target",
-        seed=seed,
-        is_demo=False,
-        success=True,
-        timeout=False,
-        observations=obs,
-        actions=rng.standard_normal((steps, 8)).astype(np.float32),
-        rewards=np.r_[np.zeros(steps - 1), 1.0].astype(np.float32),
-        terminals=terminals,
-        policy_versions=np.arange(steps, dtype=np.int64),
-        info={"ended": "success"},
-    )
 
 
 def assert_same_message(a, b) -> None:

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
+import run_budget  # bench/run_budget.py
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "bench"))  # ablation.py imports its sibling learning.py
 _spec = importlib.util.spec_from_file_location("bench_ablation", REPO / "bench" / "ablation.py")
 ablation = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(ablation)
@@ -85,8 +84,8 @@ def test_each_variants_aggregate_holds_every_seed_of_it(tmp_path, monkeypatch):
         rows = ["time,learner_step,env_steps,episodes,success_rate"]
         rows += [f"{60 * (k + 1)},{50 * k},{100 * k},10,{r}" for k, r in enumerate(rates)]
         (run_dir / "metrics" / "eval.csv").write_text("\n".join(rows) + "\n")
-    ablation.learning.save_budget(runs / "learn-push_button-cpu-small-default-s1",
-                                  ablation.learning.Budget([[0.0, 180.0]], held_rate=0.9))
+    run_budget.save_budget(runs / "learn-push_button-cpu-small-default-s1",
+                                  run_budget.Budget([[0.0, 180.0]], held_rate=0.9))
     monkeypatch.setattr(ablation.subprocess, "run", lambda *a, **k: type("Done", (), {"returncode": 0})())
     argv = ["--task", "push_button", "--variants", "default", "--seeds", "2", "--stop-at", "0.9",
             "--stop-held", "2", "--runs-dir", str(runs), "--results-dir", str(results)]

@@ -21,6 +21,8 @@ def test_launch_help_lists_the_tasks_the_default_roles_and_what_it_restarts():
 
 
 def test_the_simulator_loads_without_printing_a_banner():
-    out = run("-c", "from actors.sim import PandaEnv, SimConfig; PandaEnv(SimConfig()).close()")
+    out = run(
+        "-c", "from actors.panda_env import PandaEnv; from actors.sim import SimConfig; PandaEnv(SimConfig()).close()"
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout == "" and "pybullet build time" not in out.stderr

@@ -11,9 +11,9 @@ from typing import Literal, Optional
 
 import pytest
 import yaml
+from conftest import REPO
 
 from actors.config import ActorConfig
-from conftest import REPO
 from deploy.cli import build_parser, overrides_from_args
 from deploy.config import RunConfig, dump_yaml, load_config, write_run_dir
 from deploy.config_loader import ConfigError, field_docs, from_dict, parse_override, to_dict
@@ -109,13 +109,124 @@ def test_listening_on_all_interfaces_makes_local_roles_dial_loopback():
 def test_bad_values_are_rejected_with_their_path():
     for override, message in [
         ({"launch": {"roles": ["router", "trainer"]}}, "launch: unknown role 'trainer'"),
-        ({"dashboard": {"port": 70000}}, "dashboard: port 70000 is outside"),
+        ({"dashboard": {"port": 70000}}, r"dashboard.port must be in 0..65535 \(got 70000\)"),
         ({"run": {"run_id": "a/b"}}, "run: invalid run id 'a/b'"),
         ({"replay": {"compression": "gzip"}}, "replay.compression: expected one of"),
         ({"launch": {"roles": ["replay", "robot"]}}, "actor.scene_bounds_on_wire: must be true in a run with a robot"),
     ]:
         with pytest.raises(ConfigError, match=message):
             load_config(None, overrides=(override,))
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("learner.batch_size=-3", "learner.batch_size must be >= 1 (got -3)"),
+        ("learner.batch_size=0", "learner.batch_size must be >= 1 (got 0)"),
+        ("learner.prefetch=0", "learner.prefetch must be >= 1"),
+        ("learner.publish_every=0", "learner.publish_every must be >= 1"),
+        ("learner.checkpoint_keep=0", "learner.checkpoint_keep must be >= 1"),
+        ("learner.max_updates=-1", "learner.max_updates must be >= 0"),
+        ("learner.sample_timeout_s=.nan", "learner.sample_timeout_s must be finite and > 0 (got nan)"),
+        ("learner.acting_average=1.0", "learner.acting_average must be in [0, 1) (got 1.0)"),
+        ("learner.device=cdua", "learner.device must be auto, cpu, mps, cuda or cuda:N"),
+        ("learner.replay_endpoint=tcp://127.0.0.1:0", "learner.replay_endpoint must be tcp://HOST:PORT"),
+        ("learner.batch_size=1000", "learner.batch_size must be <= replay.max_batch_size (512)"),
+        ("qattention.lr=nan", "qattention.lr must be finite and > 0 (got nan)"),
+        ("qattention.lr=.inf", "qattention.lr must be finite and > 0 (got inf)"),
+        ("qattention.lr=0", "qattention.lr must be > 0 (got 0.0)"),
+        ("qattention.gamma=1.5", "qattention.gamma must be in [0, 1] (got 1.5)"),
+        ("qattention.tau=0", "qattention.tau must be in (0, 1]"),
+        ("qattention.voxel_size=6", "qattention.voxel_size must be a power of two >= 4 (got 6)"),
+        ("qattention.rotation_resolution=0", "qattention.rotation_resolution must be in 1..360 (got 0)"),
+        ("qattention.rotation_resolution=7", "qattention.rotation_resolution must divide 360 (got 7)"),
+        ("qattention.depths=0", "qattention.depths must be >= 1"),
+        ("qattention.bounds_offset=[0.15, -0.1]", "qattention.bounds_offset[1] must be > 0 (got -0.1)"),
+        ("qattention.per_alpha=-0.1", "qattention.per_alpha must be in [0, 1]"),
+        ("qattention.crop_shift=2", "qattention.crop_shift must be in [0, 1]"),
+        ("replay.capacity_transitions=0", "replay.capacity_transitions must be >= 1 (got 0)"),
+        ("replay.importance_beta=2", "replay.importance_beta must be in [0, 1]"),
+        ("replay.priority_eps=0", "replay.priority_eps must be > 0"),
+        ("replay.zstd_level=30", "replay.zstd_level must be in -131072..22 (got 30)"),
+        ("replay.sample_wait_timeout_s=0", "replay.sample_wait_timeout_s must be > 0"),
+        ("replay.zmq_endpoint=tcp://127.0.0.1:99999", "replay.zmq_endpoint must be tcp://HOST:PORT (port 1-65535)"),
+        ("replay.min_size_to_sample=30000", "replay.min_size_to_sample must be <= replay.capacity_transitions (20000)"),
+        (("replay.samples_per_insert=2", "replay.samples_per_insert_error_buffer=1.5"),
+         "replay.samples_per_insert_error_buffer must be >= max(1, samples_per_insert) = 2"),
+        (("replay.samples_per_insert=2", "replay.samples_per_insert_error_buffer=4"),
+         "replay.samples_per_insert_error_buffer must be >= learner.batch_size (8)"),
+        ("actor.epsilon=1.5", "actor.epsilon must be in [0, 1] (got 1.5)"),
+        ("actor.outbox_size=0", "actor.outbox_size must be >= 1"),
+        ("actor.resend_after_s=0", "actor.resend_after_s must be > 0"),
+        ("actor.eval_every_versions=0", "actor.eval_every_versions must be >= 1"),
+        ("sim.image_size=0", "sim.image_size must be >= 8 (got 0)"),
+        ("sim.episode_length=0", "sim.episode_length must be >= 1"),
+        ("sim.velocity_scale=1.5", "sim.velocity_scale must be in (0, 1]"),
+        ("sim.planner=Foo", "sim.planner must be one of 'RRTConnect'"),
+        ("sim.cameras=[front, front]", "sim.cameras must not repeat an entry"),
+        ("sim.cameras=[]", "sim.cameras must name at least one camera"),
+        ("sim.control_hz=500", "sim.physics_hz must be >= control_hz (500)"),
+        ("sim.unreachable_reward=.nan", "sim.unreachable_reward must be a finite number (got nan)"),
+        ("robot.verdict_wait_s=0", "robot.verdict_wait_s must be > 0"),
+        ("robot.franka.gripper_force=0", "robot.franka.gripper_force must be > 0"),
+        ("robot.safety.table_height=.nan", "robot.safety.table_height must be a finite number"),
+        ("robot.cameras=[{name: top}]", "robot.cameras[0].name must be one of 'front'"),
+        ("dashboard.port=-1", "dashboard.port must be in 0..65535 (got -1)"),
+        ("dashboard.host=''", "dashboard.host must not be empty"),
+        ("dashboard.refresh_ms=10", "dashboard.refresh_ms must be >= 100"),
+        ("fabric.connect=[tcp/127.0.0.1:0]", "fabric.connect[0] must be tcp/HOST:PORT with port 1-65535"),
+        ("fabric.listen=[tcp/127.0.0.1:70000]", "fabric.listen[0] must be tcp/HOST:PORT with port 0-65535"),
+        ("fabric.connect=[]", "fabric.connect must name at least one endpoint"),
+        ("fabric.reconnect_max_ms=10", "fabric.reconnect_max_ms must be >= 100"),
+        ("launch.num_actors=-1", "launch.num_actors must be >= 0 (got -1)"),
+        ("launch.roles=[]", "launch.roles must not be empty"),
+        ("launch.shutdown_grace_s=0", "launch.shutdown_grace_s must be in (0, 60]"),
+        ("launch.router_wait_s=0", "launch.router_wait_s must be > 0"),
+        ("launch.liveness_timeout_s=.inf", "launch.liveness_timeout_s must be finite and >= 0"),
+        ("launch.instance_prefix=a/b", "launch.instance_prefix must start with a letter or digit"),
+        ("run.seed=-1", "run.seed must be >= 0 (got -1)"),
+        ("run.runs_dir=''", "run.runs_dir must not be empty"),
+        ("demos.episodes=-1", "demos.episodes must be >= 0"),
+        ("demos.every_n=0", "demos.every_n must be >= 1 (got 0)"),
+    ],
+)
+def test_every_field_out_of_its_range_is_one_config_error_naming_it(override, message):
+    """`--set section.key=value` out of range: resolving the config (what every command does
+    before it starts anything) raises one line naming the dotted field and its allowed range."""
+    sets = [override] if isinstance(override, str) else list(override)  # a rule across two fields: two --set
+    args = build_parser().parse_args(["launch", *(arg for text in sets for arg in ("--set", text))])
+    with pytest.raises(ConfigError) as err:
+        load_config(args.preset, files=tuple(args.config), overrides=tuple(overrides_from_args(args)))
+    assert message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_every_shipped_preset_resolves_within_range():
+    presets = sorted(p.stem for p in (REPO / "configs").glob("*.yaml"))
+    assert {"cpu-small", "paper", "robot"} <= set(presets)
+    for preset in presets:
+        load_config(preset)  # raises ConfigError if any value is out of its range
+    load_config(None)  # the bare defaults too
+
+
+def test_the_sim_planner_names_match_the_motion_planner():
+    from actors.control.planner import PLANNERS
+    from actors.sim.config import PLANNERS as CONFIGURABLE
+
+    assert CONFIGURABLE == PLANNERS
+
+
+def test_cli_refuses_an_out_of_range_value_before_starting_anything(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "deploy.cli", "launch", "--runs-dir", str(tmp_path), "--router-port", "0",
+         "--dashboard-port", "0", "--set", "learner.batch_size=-3"],
+        capture_output=True, text=True, cwd=REPO, timeout=60,
+    )
+    assert result.returncode != 0
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "learner.batch_size must be >= 1 (got -3)" in lines[0], result.stderr
+    assert not any(tmp_path.iterdir())  # no run directory: nothing was started
+    assert result.stdout == ""  # the launcher never announced a run
 
 
 def test_a_bad_preset_file_is_named(tmp_path):

@@ -68,7 +68,8 @@ def test_a_straight_segment_is_executed_on_the_line_the_planner_checked():
 def test_an_open_hand_reaching_straight_down_onto_a_block_does_not_sweep_it_away():
     """Grasping straight from home, with no pre-grasp pose: the planner sees the open fingers and the
     arm follows the checked path. These seeds knocked the block 3-9 cm before either fix."""
-    from actors.sim import PandaEnv, SimConfig
+    from actors.panda_env import PandaEnv
+    from actors.sim import SimConfig
     env = PandaEnv(SimConfig(task="pick_and_lift", cameras=()))
     for seed in (1_000_000, 1_000_002, 1_000_004):
         env.reset(seed)
@@ -81,7 +82,8 @@ def test_an_open_hand_reaching_straight_down_onto_a_block_does_not_sweep_it_away
 
 
 def test_agent_reports_per_stage_timings():
-    from actors.sim import PandaEnv, SimConfig
+    from actors.panda_env import PandaEnv
+    from actors.sim import SimConfig
     env = PandaEnv(SimConfig(task="reach_target", cameras=()))
     env.reset(1)
     r = env.step(env.demo_waypoints()[0].action())
@@ -91,7 +93,8 @@ def test_agent_reports_per_stage_timings():
 
 
 def test_reachability_test_agrees_with_execution_and_costs_no_second_ik():
-    from actors.sim import PandaEnv, SimConfig
+    from actors.panda_env import PandaEnv
+    from actors.sim import SimConfig
     env = PandaEnv(SimConfig(task="pick_and_lift", cameras=()))
     env.reset(3)
     grasp = env.demo_waypoints()[0].action()

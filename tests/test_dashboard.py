@@ -7,8 +7,8 @@ import threading
 import httpx
 import pytest
 import uvicorn
-
 from conftest import get_free_port, wait_for
+
 from dashboard.app import create_app
 from dashboard.metrics import prometheus_text
 from dashboard.registry import FabricFeed, RoleTable

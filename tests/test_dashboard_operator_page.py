@@ -15,15 +15,15 @@ import time
 
 import pytest
 import uvicorn
+from conftest import get_free_port, wait_for
+from test_dashboard_page import CHROMEDRIVER, CHROMIUM, _driver
 
 from actors.robot.operator import FabricOperator, OperatorChannel
-from conftest import get_free_port, wait_for
 from dashboard.app import create_app
-from dashboard.operator import OperatorPublisher
+from dashboard.operator_buttons import OperatorPublisher
 from dashboard.registry import RoleTable
 from protocol.fabric import open_session
 from protocol.messages import OperatorAction, Status
-from test_dashboard_page import CHROMEDRIVER, CHROMIUM, _driver
 
 pytestmark = pytest.mark.timeout(600)
 RUN_ID = "operator-page"

@@ -23,8 +23,8 @@ import httpx
 import numpy as np
 import pytest
 import uvicorn
-
 from conftest import REPO, get_free_port, wait_for
+
 from dashboard.app import create_app
 from dashboard.registry import RoleTable
 from protocol.messages import Status
@@ -67,11 +67,13 @@ def record_run(run: Path) -> dict:
     """A run directory as the roles would leave it; returns what the page should show."""
     import torch
 
-    from actors.actor_loop import Rollout, pad_act_labels
-    from actors.demos.mcap_io import write_episode_mcap
+    from actors.actor_loop import Rollout
     from actors.evaluation import write_snapshot
-    from actors.qattention_snapshot import FILENAME, load_snapshot
-    from actors.sim import PandaEnv, SimConfig
+    from actors.panda_env import PandaEnv
+    from actors.sim import SimConfig
+    from protocol.attention_snapshot import FILENAME, load_snapshot
+    from protocol.episode_file import write_episode_mcap
+    from protocol.transition import pad_act_labels
     from qattention import C2FARM, ObservationBatch, QAttentionConfig
     from qattention.action_codec import encode_action
 
@@ -96,9 +98,12 @@ def record_run(run: Path) -> dict:
         # cascade zooming in on the target.
         first = env.reset(seed=1)
         executed = np.asarray(env.demo_waypoints()[0].action(), np.float32)
-        labels = encode_action(torch.as_tensor(executed[None]), torch.as_tensor([env.scene_bounds], dtype=torch.float32),
-                               config)
-        first.extras.update(voxel_indices=labels.voxel_indices[0].numpy(), attention_coordinates=labels.coordinates[0].numpy())
+        labels = encode_action(
+            torch.as_tensor(executed[None]), torch.as_tensor([env.scene_bounds], dtype=torch.float32), config
+        )
+        first.extras.update(
+            voxel_indices=labels.voxel_indices[0].numpy(), attention_coordinates=labels.coordinates[0].numpy()
+        )
         step = env.step(executed)
         frames = [first, step.observation]
         pad_act_labels(frames, config.depths)
@@ -133,10 +138,28 @@ def feed(table: RoleTable) -> None:
     for s in (
         status("learner", "learner", updates=120, updates_per_s=0.9, weights_version=7),
         status("replay", "replay", size_transitions=560, samples_per_insert=0.74, ingest_rejected_decode=0),
-        status("actor", "actor-0", episodes=60, env_steps=250, success_rate=0.3, unreachable_rate=0.1, weights_version=6,
-               weights_latency_s=0.010035514831542969, sent=60, acked=60),
-        status("actor", "actor-1", episodes=52, env_steps=150, success_rate=0.25, unreachable_rate=0.0,
-               weights_version=7, weights_latency_s=0.2),
+        status(
+            "actor",
+            "actor-0",
+            episodes=60,
+            env_steps=250,
+            success_rate=0.3,
+            unreachable_rate=0.1,
+            weights_version=6,
+            weights_latency_s=0.010035514831542969,
+            sent=60,
+            acked=60,
+        ),
+        status(
+            "actor",
+            "actor-1",
+            episodes=52,
+            env_steps=150,
+            success_rate=0.25,
+            unreachable_rate=0.0,
+            weights_version=7,
+            weights_latency_s=0.2,
+        ),
         status("eval", "eval", eval_success=0.85, eval_version=7, eval_unreachable=0.0, weights_version=7),
         status("demos", "demos", demos=10, demo_episodes=40),
     ):
@@ -259,7 +282,8 @@ const c = document.createElement("canvas"); c.width = src.width; c.height = src.
 const g = c.getContext("2d"); g.drawImage(src, 0, 0);
 const d = g.getImageData(0, 0, c.width, c.height).data;
 let ink = 0;
-for (let i = 0; i < d.length; i += 4) if (Math.abs(d[i] - 248) + Math.abs(d[i + 1] - 250) + Math.abs(d[i + 2] - 252) > 30) ink++;
+for (let i = 0; i < d.length; i += 4) if (Math.abs(d[i] - 248) + Math.abs(d[i + 1] - 250) + Math.abs(d[i + 2] - 252) >
+30) ink++;
 return [ink, c.width * c.height];
 """
 
@@ -285,7 +309,8 @@ def test_the_page_in_headless_chromium(served, tmp_path):
         assert timeline[0] == pytest.approx([e[6] / 60 for e in EVALS])
 
         rows = driver.execute_script("""return [...document.querySelectorAll('#actor-rows tr[data-role]')]
-            .map(r => [r.dataset.instance, r.querySelector('.state').textContent, r.cells[3].textContent, r.cells[8].textContent])""")
+            .map(r => [r.dataset.instance, r.querySelector('.state').textContent, r.cells[3].textContent,
+            r.cells[8].textContent])""")
         by_name = {r[0]: r[1:] for r in rows}
         assert set(by_name) == {"actor-0", "actor-1", "eval", "demos"}
         assert by_name["actor-0"] == ["running", "1", "10 ms"]  # lag 7 - 6, latency rounded for people

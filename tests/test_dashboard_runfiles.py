@@ -12,7 +12,7 @@ from PIL import Image
 from dashboard.episodes import encode_png, project, project_pose, quaternion_matrix
 from dashboard.filecache import CsvTail, FileCache
 from dashboard.history import MAX_POINTS, RunHistory, env_rates, thin
-from dashboard.roles import restart_policy, state_word, with_state_words
+from dashboard.role_states import restart_policy, state_word, with_state_words
 from protocol.observation import CameraFrame, Observation
 
 
@@ -116,7 +116,7 @@ def _observation(step: int, size: int = 8) -> Observation:
 
 
 def test_eval_mcap_carries_actions_and_why_it_ended(tmp_path):
-    from actors.demos.mcap_io import load_demo, read_episode_view, write_episode_mcap
+    from protocol.episode_file import load_demo, read_episode_view, write_episode_mcap
 
     observations = [_observation(i) for i in range(3)]
     actions = [np.arange(8, dtype=np.float32) + i for i in range(2)]
@@ -135,8 +135,8 @@ def test_eval_mcap_carries_actions_and_why_it_ended(tmp_path):
 
 
 def test_old_eval_files_without_actions_still_read(tmp_path):
-    from actors.demos.mcap_io import read_episode_view, write_episode_mcap
     from dashboard.episodes import outcome_of
+    from protocol.episode_file import read_episode_view, write_episode_mcap
 
     path = tmp_path / "v000001-seed1.mcap"
     write_episode_mcap(path, [_observation(0)], task="reach_target", seed=1, success=True)

@@ -32,7 +32,8 @@ def test_generated_demo_reloads_as_observations(demo_file):
 
 def test_reloaded_points_match_the_recorded_ones(demo_file, tmp_path):
     from actors.demos.generate import record_demo
-    from actors.sim import PandaEnv, SimConfig
+    from actors.panda_env import PandaEnv
+    from actors.sim import SimConfig
     env = PandaEnv(SimConfig(task="pick_and_lift", cameras=("front", "wrist"), image_size=48))
     live = record_demo(env, demo_file.seeds[0])
     env.close()
@@ -52,7 +53,12 @@ def test_file_has_foxglove_channels_and_episode_metadata(demo_file):
         schemas = {s.name for s in summary.schemas.values()}
         topics = {c.topic for c in summary.channels.values()}
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
-    assert {"foxglove.RawImage", "foxglove.CameraCalibration", "foxglove.PointCloud", "foxglove.FrameTransforms"} <= schemas
+    assert {
+        "foxglove.RawImage",
+        "foxglove.CameraCalibration",
+        "foxglove.PointCloud",
+        "foxglove.FrameTransforms",
+    } <= schemas
     assert {"/front/image", "/wrist/calibration", "/front/points", "/tf", "/joint_states"} <= topics
     assert meta["episode"]["task"] == "pick_and_lift" and json.loads(meta["episode"]["success"]) is True
 

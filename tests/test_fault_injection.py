@@ -22,13 +22,14 @@ from pathlib import Path
 import httpx
 import psutil
 import pytest
+from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, survivors, wait_for
+from synthetic_episodes import synthetic_episode
 
-from actors.outbox import Outbox
-from conftest import REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, make_episode, survivors, wait_for
 from protocol import keys
-from protocol.fabric import FabricConfig, open_session
-from protocol.episode import Episode
 from protocol.codec import payload_digest
+from protocol.episode import Episode
+from protocol.episode_outbox import Outbox
+from protocol.fabric import FabricConfig, open_session
 from protocol.messages import AckStatus, EpisodeAck, decode, encode
 
 _spec = importlib.util.spec_from_file_location("hostile", REPO / "bench" / "hostile.py")
@@ -67,7 +68,8 @@ class LiveRun:
             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
         )
         self.lines: list[str] = []
-        threading.Thread(target=lambda: self.lines.extend(l.rstrip() for l in self.proc.stdout), daemon=True).start()
+        threading.Thread(target=lambda: self.lines.extend(line.rstrip() for line in self.proc.stdout),
+                         daemon=True).start()
         self.children = Descendants(self.proc.pid)
         self.http = httpx.Client(base_url=f"http://127.0.0.1:{self.ports['dashboard']}", timeout=3)
         self.acked: dict[int, float] = {}  #: actor pid -> most episodes it reported acknowledged (stored)
@@ -150,11 +152,14 @@ def test_a_stopped_learner_is_killed_and_replaced(live):
     t0 = time.monotonic()
     try:
         killed = re.compile(rf"learner \(pid {victim}\) silent for \d+ s")
-        wait_for(lambda: any(killed.search(l) for l in live.lines), GRACE_S + TIMEOUT_S + 60,
+        wait_for(lambda: any(killed.search(line) for line in live.lines), GRACE_S + TIMEOUT_S + 60,
                  "the launcher to kill the silent learner", interval=0.5)
         print(f"stopped learner killed after {time.monotonic() - t0:.1f} s")
-        assert wait_for(lambda: not psutil.pid_exists(victim) or psutil.Process(victim).status() == psutil.STATUS_ZOMBIE,
-                        10, "the stopped learner to be gone")
+        assert wait_for(
+            lambda: not psutil.pid_exists(victim) or psutil.Process(victim).status() == psutil.STATUS_ZOMBIE,
+            10,
+            "the stopped learner to be gone",
+        )
         wait_for(lambda: (s := live.alive(*ROLES)) and s["learner"]["pid"] != victim, BACK_S,
                  "a new learner", interval=0.5)
         live.wait_training(before, "the stopped learner")
@@ -214,7 +219,8 @@ def test_a_clean_stop_under_load_is_quick_and_leaves_nothing_behind(live):
     assert live.proc.wait(timeout=30) == 0
     seconds = time.monotonic() - t0
     left = survivors(live.children.processes)
-    stopped = [l for l in live.lines if "all roles stopped in" in l or "did not stop" in l or "still dying" in l]
+    ends = ("all roles stopped in", "did not stop", "still dying")
+    stopped = [line for line in live.lines if any(end in line for end in ends)]
     print(f"clean stop took {seconds:.1f} s: {stopped}")
     assert not left, f"left behind: {left}"
     assert seconds < 10.0, stopped
@@ -243,7 +249,7 @@ def test_a_full_outbox_keeps_resending_while_it_waits_for_room():
     try:
         time.sleep(0.5)  # let the subscriptions reach the router
         for i in range(4):
-            outbox.send(make_episode(steps=2, side=8, episode_id=i))
+            outbox.send(synthetic_episode(steps=2, size=8, episode_id=i))
         assert outbox.flush(timeout_s=30)
         assert outbox.counters["dropped"] == 0 and outbox.counters["acked"] == 4
     finally:
@@ -264,10 +270,10 @@ def test_a_full_outbox_stops_waiting_when_its_role_is_told_to_stop():
     stop = threading.Event()
     outbox = Outbox(actor, "ob", "actor-0", size=1, resend_after_s=0.3, wait_s=60.0, stop=stop)
     try:
-        outbox.send(make_episode(steps=2, side=8, episode_id=0))
+        outbox.send(synthetic_episode(steps=2, size=8, episode_id=0))
         threading.Timer(0.5, stop.set).start()
         t0 = time.monotonic()
-        outbox.send(make_episode(steps=2, side=8, episode_id=1))  # full: waits until stop
+        outbox.send(synthetic_episode(steps=2, size=8, episode_id=1))  # full: waits until stop
         assert time.monotonic() - t0 < 30  # correctness bound: far below wait_s
         assert outbox.counters["dropped"] == 0 and outbox.pending == 2
     finally:
@@ -289,7 +295,7 @@ def test_an_ack_for_another_payload_never_retires_an_episode():
     outbox = Outbox(actor, "ob", "actor-0", size=4, resend_after_s=0.3, wait_s=60.0)
     try:
         time.sleep(0.5)  # let the subscriptions reach the router
-        outbox.send(make_episode(steps=2, side=8, episode_id=7))
+        outbox.send(synthetic_episode(steps=2, size=8, episode_id=7))
         forged = EpisodeAck("actor-0", 7, AckStatus.STORED, digest="0" * 16)
         for _ in range(3):
             forger.put(keys.acks("ob", "actor-0"), encode(forged))

@@ -1,4 +1,4 @@
-"""Keyframe discovery (ARM's rule, c2farm_spec 6.1) recovers every task's scripted waypoints exactly;
+"""Keyframe discovery (ARM's rule, the authors' keypoint_discovery) recovers every task's scripted waypoints exactly;
 a demo with its operator's keyframes keeps those."""
 
 import numpy as np
@@ -7,7 +7,8 @@ import pytest
 from actors.demos import Demo, demo_to_transitions, discover_keyframes, load_demo, write_demo
 from actors.demos.generate import record_demo
 from actors.demos.keyframes import demo_keyframes
-from actors.sim import TASKS, PandaEnv, SimConfig
+from actors.panda_env import PandaEnv
+from actors.sim import TASKS, SimConfig
 from protocol.observation import Observation
 
 

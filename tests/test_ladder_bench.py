@@ -7,10 +7,10 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import learning_curves  # bench/learning_curves.py
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "bench"))  # ladder.py imports its sibling learning.py
 _spec = importlib.util.spec_from_file_location("bench_ladder", REPO / "bench" / "ladder.py")
 ladder = importlib.util.module_from_spec(_spec)
 sys.modules["bench_ladder"] = ladder  # dataclasses look their module up here
@@ -18,13 +18,22 @@ _spec.loader.exec_module(ladder)
 
 
 def write_seed(results: Path, task: str, seed: int, rates: list[float], minutes_apart: float) -> None:
-    curve = [{"minutes": minutes_apart * (k + 1), "env_steps": 200 * k, "learner_step": 50 * k, "weights_version": 1 + 5 * k,
-              "success_rate": r, "episodes": 20} for k, r in enumerate(rates)]
-    ladder.learning.write_csv(results / f"{task}-cpu-small-ladder-s{seed}.csv", curve, ladder.learning.CURVE_FIELDS)
+    curve = [
+        {
+            "minutes": minutes_apart * (k + 1),
+            "env_steps": 200 * k,
+            "learner_step": 50 * k,
+            "weights_version": 1 + 5 * k,
+            "success_rate": r,
+            "episodes": 20,
+        }
+        for k, r in enumerate(rates)
+    ]
+    learning_curves.write_csv(results / f"{task}-cpu-small-ladder-s{seed}.csv", curve, learning_curves.CURVE_FIELDS)
 
 
 def test_the_ladder_is_every_task_and_each_rung_a_config_the_run_accepts():
-    from actors.sim.task_names import TASKS
+    from actors.sim.task_specs import TASKS
 
     assert tuple(ladder.RUNGS) == TASKS
     for rung in ladder.RUNGS.values():

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import httpx
 import pytest
-
 from conftest import REPO, Descendants, get_free_port, kill_launcher, stop_launcher, stop_process_tree, wait_for
+
 from dashboard.registry import FabricFeed, RoleTable
 from deploy.cli import build_parser
 from protocol.fabric import FabricConfig, open_session
@@ -93,8 +93,14 @@ def test_launch_runs_every_role_restarts_a_killed_actor_and_stops_clean(tmp_path
             assert gone["state"] == "gone" and gone["losses"] >= 1
             assert roles()["actor-0"]["alive"]  # the others carry on
             back = wait_for(
-                lambda: (r := roles()) and r["actor-1"]["alive"] and r["actor-1"]["pid"] not in (None, victim) and r["actor-1"],
-                60, "the actor to be restarted",
+                lambda: (
+                    (r := roles())
+                    and r["actor-1"]["alive"]
+                    and r["actor-1"]["pid"] not in (None, victim)
+                    and r["actor-1"]
+                ),
+                60,
+                "the actor to be restarted",
             )
             assert back["starts"] >= 2
             children.scan()
@@ -237,13 +243,13 @@ class _Lines:
         self.lines: list[str] = []
 
     def write(self, text: str) -> None:
-        self.lines.extend(l for l in text.splitlines() if l)
+        self.lines.extend(line for line in text.splitlines() if line)
 
     def flush(self) -> None:
         pass
 
     def has(self, text: str) -> bool:
-        return any(text in l for l in list(self.lines))
+        return any(text in line for line in list(self.lines))
 
 
 BEATING = "from deploy.liveness import start_beacon_from_env; start_beacon_from_env(); import time; time.sleep(120)"
@@ -276,7 +282,9 @@ def test_a_silent_role_is_killed_and_restarted(tmp_path: Path):
 
 
 def test_a_stop_kills_a_role_that_ignores_sigterm_at_the_deadline(tmp_path: Path):
-    stubborn = "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); time.sleep(120)"
+    stubborn = (
+        "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); time.sleep(120)"
+    )
     launcher, out = _ScriptLauncher.make(tmp_path, stubborn, shutdown_grace_s=1.0)
     child = launcher.children[0]
 

@@ -130,7 +130,7 @@ def test_labels_for_another_depth_count_reject_the_batch(learner):
 
 def with_n_step(a, steps=(1, 2, 3)):
     """n-step fields as a replay with ``n_step=3`` serves them."""
-    a["rewards"] = np.zeros((len(a["indices"]), 3), np.float32)
+    a["n_rewards"] = np.zeros((len(a["indices"]), 3), np.float32)
     a["bootstrap_steps"] = np.array(steps, np.int64)
     return a
 

@@ -26,8 +26,8 @@ import httpx
 import numpy as np
 import pytest
 import uvicorn
-
 from conftest import REPO, get_free_port, wait_for
+
 from dashboard.app import create_app
 from dashboard.metrics import UNDOCUMENTED, prometheus_text
 from dashboard.metrics_catalog import BY_LABEL, EXACT, Family, Skip, lookup
@@ -84,14 +84,14 @@ def _part_builders(session) -> dict[str, Callable[[], dict[str, float]]]:
     from a real object with its by-reason counters fired, built when a closure names it."""
 
     def outbox() -> dict[str, float]:
-        from actors.outbox import Outbox
+        from protocol.episode_outbox import Outbox
 
         box = Outbox(session, "run-1", "actor-0")
         box.close()
         return dict(box.counters)
 
     def follower() -> dict[str, float]:
-        from actors.weights import WeightsFollower
+        from protocol.weights_follower import WeightsFollower
 
         weights = WeightsFollower(session, "run-1")
         weights.reject("unforeseen_reason")
@@ -122,7 +122,17 @@ def _part_builders(session) -> dict[str, Callable[[], dict[str, float]]]:
 
         return EvalResult(5, 50, 300, 20, 0.9, 0.9, 0.05).counters()
 
-    parts = {"outbox": outbox, "follower": follower, "arm": lambda: dict(arm().counters),
+    def stats() -> dict[str, float]:  # episodes an acting role collected (actors/role_loop.py)
+        from actors.actor_loop import Rollout
+        from actors.control import UNREACHABLE_REASONS
+        from actors.role_loop import EpisodeStats
+
+        counted = EpisodeStats()
+        for reason in UNREACHABLE_REASONS:
+            counted.add(Rollout(observations=[], reason="unreachable", unreachable_reason=reason))
+        return counted.as_dict()
+
+    parts = {"outbox": outbox, "follower": follower, "stats": stats, "arm": lambda: dict(arm().counters),
              "arm.safety": lambda: arm().safety.counters(), "channel": channel,
              "latest": evaluation}
     return {name: functools.cache(build) for name, build in parts.items()}
@@ -153,7 +163,7 @@ class _ClosureReader:
             return self.names(node.body) | self.names(node.orelse)
         source = ast.unparse(node)
         for part, counters in self.shared.items():  # outbox.counters, follower.counters(), ...
-            if source in (f"{part}.counters", f"{part}.counters()"):
+            if source in (f"{part}.counters", f"{part}.counters()", f"{part}.as_dict()"):
                 return set(counters())
         self.unresolved.append(source)
         return set()
@@ -207,7 +217,9 @@ class _HeartbeatCalls(ast.NodeVisitor):
     visit_AsyncFunctionDef = visit_FunctionDef
 
     def visit_Call(self, node: ast.Call) -> None:
-        if ast.unparse(node.func).split(".")[-1] == "Heartbeat":
+        # ``Heartbeat(session, run, role, instance, counters=...)`` or ``RoleLinks.beat(role, counters, info)``
+        if ast.unparse(node.func).split(".")[-1] == "Heartbeat" or (
+                isinstance(node.func, ast.Attribute) and node.func.attr == "beat"):
             self.found.append((self.scopes[-1], node))
         self.generic_visit(node)
 
@@ -219,7 +231,12 @@ def _heartbeat_sites() -> Iterator[tuple[Path, str, ast.AST, ast.Call]]:
             calls = _HeartbeatCalls()
             calls.visit(ast.parse(path.read_text(encoding="utf-8")))
             for scope, call in calls.found:
-                role = call.args[2] if len(call.args) > 2 else next(k.value for k in call.keywords if k.arg == "role")
+                beat = ast.unparse(call.func).split(".")[-1] == "beat"
+                if getattr(scope, "name", "") == "beat":
+                    continue  # RoleLinks.beat forwards its caller's role: the caller is the site
+                position = 0 if beat else 2
+                role = call.args[position] if len(call.args) > position else next(
+                    k.value for k in call.keywords if k.arg == "role")
                 assert isinstance(role, ast.Constant), f"{path}: the Heartbeat's role is not a literal"
                 yield path, role.value, scope, call
 
@@ -238,6 +255,8 @@ def role_counters(tmp_path_factory) -> dict[str, dict[str, float]]:
         unresolved: list[str] = []
         for path, role, scope, call in _heartbeat_sites():
             counters = next((k.value for k in call.keywords if k.arg == "counters"), None)
+            if counters is None and ast.unparse(call.func).endswith(".beat") and len(call.args) > 1:
+                counters = call.args[1]
             if counters is None:
                 names: dict[str, float] = {}
             elif role in real and isinstance(counters, ast.Attribute):  # learner.counters, self.counters

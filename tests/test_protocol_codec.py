@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import assert_same_message
+from synthetic_episodes import synthetic_episode
 
-from conftest import assert_same_message, make_episode
 from protocol import (
     AckStatus,
     Episode,
@@ -27,7 +28,7 @@ DIGEST = "0123456789abcdef"  #: an ack's payload digest (any 16 hex digits for t
 def _messages():
     rng = np.random.default_rng(1)
     return [
-        make_episode(),
+        synthetic_episode(),
         EpisodeAck("actor-3", 17, AckStatus.DUPLICATE, "already stored", DIGEST),
         EpisodeAck("actor-3", 18, AckStatus.STORED, digest=DIGEST),
         WeightsUpdate(
@@ -69,7 +70,7 @@ def test_every_message_round_trips(message):
 
 @pytest.mark.parametrize("cameras", [("front",), CAMERA_NAMES], ids=["1-camera", "4-cameras"])
 def test_large_episodes_round_trip(cameras):
-    episode = make_episode(cameras=cameras, steps=10, side=128)
+    episode = synthetic_episode(cameras=cameras, steps=10, size=128)
     data = encode(episode)
     assert len(data) > len(cameras) * 11 * 128 * 128 * 9  # rgb (3 B) + float16 points (6 B) per pixel
     back = decode(data, expect=Episode)
@@ -79,7 +80,7 @@ def test_large_episodes_round_trip(cameras):
 
 
 def test_a_many_megabyte_episode_round_trips():
-    episode = make_episode(cameras=CAMERA_NAMES, steps=30, side=256)  # ~ 70 MB
+    episode = synthetic_episode(cameras=CAMERA_NAMES, steps=30, size=256)  # ~ 70 MB
     data = encode(episode)
     assert len(data) > 50 * 1024 * 1024
     assert_same_message(episode, decode(data))
@@ -92,7 +93,7 @@ def test_decode_rejects_a_valid_message_of_another_kind():
 
 
 def test_encode_refuses_an_invalid_episode_before_it_leaves():
-    episode = make_episode()
+    episode = synthetic_episode()
     episode.rewards = episode.rewards[:-1]
     with pytest.raises(ProtocolError) as err:
         encode(episode)
@@ -110,7 +111,7 @@ def test_decode_names_the_field_of_a_schema_violation():
         decode(encode_frame(Kind.STATUS, fields, {}))
     assert err.value.field == "pid"
 
-    episode = make_episode()
+    episode = synthetic_episode()
     episode.observations["front_points"] = episode.observations["front_points"][:, :64]
     arrays = {f"obs/{k}": v for k, v in episode.observations.items()}
     arrays |= {f"step/{k}": getattr(episode, k) for k in ("actions", "rewards", "terminals", "policy_versions")}
@@ -122,7 +123,7 @@ def test_decode_names_the_field_of_a_schema_violation():
 
 
 def test_oversized_messages_are_rejected_before_parsing():
-    data = encode(make_episode())
+    data = encode(synthetic_episode())
     with pytest.raises(ProtocolError, match="exceeds the limit"):
         decode(data, max_bytes=len(data) - 1)
     assert isinstance(decode(data, max_bytes=len(data)), Episode)
@@ -137,7 +138,7 @@ from protocol.messages import Kind  # noqa: E402
 
 def labelled_episode(steps: int = 2, depths: int = 3):
     """A small episode with the act-time labels an actor records (extras)."""
-    episode = make_episode(steps=steps, side=8)
+    episode = synthetic_episode(steps=steps, size=8)
     n = steps + 1
     episode.observations["extra_voxel_indices"] = np.zeros((n, depths, 3), np.int64)
     episode.observations["extra_attention_coordinates"] = np.zeros((n, depths, 3), np.float32)
@@ -259,7 +260,9 @@ def test_weights_must_be_finite_floats():
 def test_priorities_must_be_finite_and_non_negative():
     def update(p, indices=(0, 1)):
         i = np.asarray(indices, np.int64)
-        return encode_frame(Kind.PRIORITY_UPDATE, {}, {"indices": i, "keys": i, "priorities": np.asarray(p, np.float32)})
+        return encode_frame(
+            Kind.PRIORITY_UPDATE, {}, {"indices": i, "keys": i, "priorities": np.asarray(p, np.float32)}
+        )
 
     assert rejected_field(update([1.0, np.nan])) == "priorities"
     assert rejected_field(update([1.0, -0.5])) == "priorities"
@@ -279,11 +282,11 @@ def test_status_counters_may_be_non_finite_but_its_fields_may_not():
 
 
 def test_receivers_pass_their_own_limits():
-    episode = make_episode(steps=12, side=16)
+    episode = synthetic_episode(steps=12, size=16)
     data = encode(episode)
     assert rejected_field(data, limits=Limits(max_steps=10)) == "actions"
     assert rejected_field(data, limits=Limits(max_image_side=8)) == "observations.front_rgb"
-    assert rejected_field(encode(make_episode(cameras=("a", "b", "c"), steps=1, side=4)),
+    assert rejected_field(encode(synthetic_episode(cameras=("a", "b", "c"), steps=1, size=4)),
                           limits=Limits(max_cameras=2)) == "observations"
 
     big = encode(SampleRequest(1, batch_size=DEFAULT_LIMITS.max_batch))

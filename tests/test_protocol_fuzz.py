@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from synthetic_episodes import synthetic_episode
 
-from conftest import make_episode
 from protocol import PROTOCOL_VERSION, EpisodeAck, ProtocolError, SampleRequest, Status, decode, encode
 from protocol.codec import MAGIC, encode_frame
 from protocol.messages import AckStatus, Kind, PriorityUpdate
 
 FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
-SMALL_EPISODE = encode(make_episode(steps=2, side=8))
+SMALL_EPISODE = encode(synthetic_episode(steps=2, size=8))
 VALID = [
     SMALL_EPISODE,
     encode(EpisodeAck("actor-0", 3, AckStatus.STORED, digest="0123456789abcdef")),

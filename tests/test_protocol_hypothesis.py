@@ -17,8 +17,8 @@ import struct
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from synthetic_episodes import synthetic_episode
 
-from conftest import make_episode
 from protocol import (
     MAX_INT,
     AckStatus,
@@ -42,7 +42,7 @@ FAST = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCh
 
 
 def small_episode() -> Episode:
-    episode = make_episode(steps=2, side=4)
+    episode = synthetic_episode(steps=2, size=4)
     n = 3
     episode.observations["front_points"][0, 0, 0] = np.nan  # allowed: invalid depth
     episode.observations["extra_voxel_indices"] = np.ones((n, 2, 3), np.int64)
@@ -54,17 +54,39 @@ def small_episode() -> Episode:
 MESSAGES = [
     small_episode(),
     EpisodeAck("actor-0", 3, AckStatus.REJECTED, "bad depth", "0123456789abcdef"),
-    WeightsUpdate(2, 10, {"a.weight": np.ones((2, 3), np.float32), "a.bias": np.zeros(2, np.float16)}, "abc123", 1.7e9, 5),
-    Status("learner", "learner-0", "run-1", 42, "host", 1.7e9, "running", {"loss/td": float("nan"), "n": 3}, {"k": "v"}),
+    WeightsUpdate(
+        2, 10, {"a.weight": np.ones((2, 3), np.float32), "a.bias": np.zeros(2, np.float16)}, "abc123", 1.7e9, 5
+    ),
+    Status(
+        "learner", "learner-0", "run-1", 42, "host", 1.7e9, "running", {"loss/td": float("nan"), "n": 3}, {"k": "v"}
+    ),
     SampleRequest(7, 32, 500),
-    SampleBatch(7, {"front_points": np.full((2, 3), np.nan, np.float16), "reward": np.ones(2, np.float32),
-                    "terminal": np.array([True, False])}, "", {"replay_size": 10.0}),
+    SampleBatch(
+        7,
+        {
+            "front_points": np.full((2, 3), np.nan, np.float16),
+            "reward": np.ones(2, np.float32),
+            "terminal": np.array([True, False]),
+        },
+        "",
+        {"replay_size": 10.0},
+    ),
     SampleBatch(8, {}, "rate limiter timed out", {}),
     PriorityUpdate(np.arange(4, dtype=np.int64), np.arange(4, dtype=np.int64), np.ones(4, np.float32)),
 ]
 VALID = [encode(m) for m in MESSAGES]
 ID_FIELDS = ("actor_id", "task", "role", "instance", "run_id", "state")
-INT_FIELDS = ("episode_id", "seed", "version", "learner_step", "env_steps", "pid", "request_id", "batch_size", "timeout_ms")
+INT_FIELDS = (
+    "episode_id",
+    "seed",
+    "version",
+    "learner_step",
+    "env_steps",
+    "pid",
+    "request_id",
+    "batch_size",
+    "timeout_ms",
+)
 SAFE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 
 
@@ -261,7 +283,9 @@ DTYPE_OF = {"F16": "float16", "F32": "float32", "F64": "float64", "BOOL": "bool"
 @given(st.sampled_from(VALID), st.data())
 def test_nan_inside_an_array_is_refused_unless_it_is_a_point_cloud(data, draw):
     kind, fields, table, buffers = split(data)
-    targets = sorted(n for n, e in table.items() if e["dtype"] in DTYPE_OF and e["data_offsets"][1] > e["data_offsets"][0])
+    targets = sorted(
+        n for n, e in table.items() if e["dtype"] in DTYPE_OF and e["data_offsets"][1] > e["data_offsets"][0]
+    )
     if not targets:
         return
     name = draw.draw(st.sampled_from(targets))

@@ -13,16 +13,18 @@ import sys
 import textwrap
 from pathlib import Path
 
-from conftest import REPO, assert_same_message, make_episode, stop_process_tree
+from conftest import REPO, assert_same_message, stop_process_tree
+from synthetic_episodes import synthetic_episode
+
 from protocol import Episode, decode, encode
 from protocol.fabric import FabricConfig
 
 PRELUDE = textwrap.dedent(
     """
     import hashlib, json, sys, time
-    sys.path.insert(0, {tests!r})
+    sys.path.insert(0, {bench!r})  # a child process: pytest's pythonpath does not reach it
     import zenoh
-    from conftest import make_episode
+    from synthetic_episodes import synthetic_episode
     from protocol import AckStatus, Episode, EpisodeAck, decode, encode, keys
     from protocol.codec import payload_digest
     from protocol.fabric import FabricConfig, open_session
@@ -39,14 +41,15 @@ while not received:
 data = received[0]
 episode = decode(data, expect=Episode)
 open(sys.argv[1], "wb").write(data)
-session.put(keys.acks("t", episode.actor_id), encode(EpisodeAck(episode.actor_id, episode.episode_id, AckStatus.STORED, digest=payload_digest(data))))
+session.put(keys.acks("t", episode.actor_id), encode(EpisodeAck(episode.actor_id, episode.episode_id, AckStatus.STORED,
+digest=payload_digest(data))))
 print(json.dumps({"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}), flush=True)
 time.sleep(0.5)
 session.close()
 """
 
 SENDER = """
-data = encode(make_episode(cameras=("front", "wrist"), seed=7, actor_id="actor-5", episode_id=42))
+data = encode(synthetic_episode("actor-5", 42, cameras=("front", "wrist")))
 acks = session.declare_subscriber(keys.acks("t", "actor-5"))
 publisher = session.declare_publisher(keys.episodes("t", "actor-5"), congestion_control=zenoh.CongestionControl.BLOCK)
 ack = None
@@ -59,13 +62,14 @@ while ack is None:
             time.sleep(0.01)
         else:
             ack = decode(sample.payload.to_bytes(), expect=EpisodeAck)
-print(json.dumps({"sha256": hashlib.sha256(data).hexdigest(), "ack": ack.status.value, "episode_id": ack.episode_id}), flush=True)
+print(json.dumps({"sha256": hashlib.sha256(data).hexdigest(), "ack": ack.status.value, "episode_id": ack.episode_id}),
+flush=True)
 session.close()
 """
 
 
 def _spawn(script: str, fabric: FabricConfig, *args: str) -> subprocess.Popen:
-    code = PRELUDE.format(tests=str(REPO / "tests"), connect=list(fabric.connect), shm=fabric.shared_memory) + script
+    code = PRELUDE.format(bench=str(REPO / "bench"), connect=list(fabric.connect), shm=fabric.shared_memory) + script
     return subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=REPO)
 
@@ -84,7 +88,7 @@ def test_an_episode_crosses_zenoh_between_two_processes_byte_for_byte(router, tm
     assert receiver.returncode == 0, got_err
     sent, got = json.loads(sent_out), json.loads(got_out)
 
-    expected = encode(make_episode(cameras=("front", "wrist"), seed=7, actor_id="actor-5", episode_id=42))
+    expected = encode(synthetic_episode("actor-5", 42, cameras=("front", "wrist")))
     assert sent["sha256"] == got["sha256"] == hashlib.sha256(expected).hexdigest()
     assert got["bytes"] == len(expected) > 2 * 1024 * 1024
     assert (sent["ack"], sent["episode_id"]) == ("stored", 42)

@@ -8,8 +8,8 @@ from protocol.observation import CameraFrame, Observation
 from qattention import C2FARM, ObservationBatch, QAttentionConfig, descend
 from qattention.action_codec import bins_to_rotation
 from qattention.crop import crop_images, gather_points, project_to_pixel
-from qattention.synthetic import observation_arrays
 from qattention.reachability import inside_workspace, ranked_candidates
+from qattention.synthetic import observation_arrays
 
 CFG = QAttentionConfig(image_crop=0)  # 2 x 16^3 over the reference's 1 m cube
 
@@ -31,7 +31,9 @@ def single_point_scene(targets, resolution=8):
     """Every pixel of one camera sees the target point."""
     b = len(targets)
     arrays = observation_arrays(b, ("front",), resolution, seed=0)
-    arrays["front_points"] = np.broadcast_to(targets[:, None, None, :], (b, resolution, resolution, 3)).astype(np.float32)
+    arrays["front_points"] = np.broadcast_to(targets[:, None, None, :], (b, resolution, resolution, 3)).astype(
+        np.float32
+    )
     return ObservationBatch.from_arrays(arrays, ("front",))
 
 
@@ -69,14 +71,27 @@ def test_agent_acts_on_protocol_observations():
     arrays = observation_arrays(2, ("front", "wrist"), resolution=32, seed=2)
     observations = [
         Observation(
-            cameras={c: CameraFrame(arrays[f"{c}_rgb"][i], arrays[f"{c}_points"][i].astype(np.float16),
-                                    arrays[f"{c}_intrinsics"][i], arrays[f"{c}_extrinsics"][i]) for c in ("front", "wrist")},
-            gripper_pose=arrays["gripper_pose"][i], gripper_open=1.0, finger_positions=np.array([0.04, 0.04]),
-            joint_positions=np.zeros(7), joint_velocities=np.zeros(7), step=i,
+            cameras={
+                c: CameraFrame(
+                    arrays[f"{c}_rgb"][i],
+                    arrays[f"{c}_points"][i].astype(np.float16),
+                    arrays[f"{c}_intrinsics"][i],
+                    arrays[f"{c}_extrinsics"][i],
+                )
+                for c in ("front", "wrist")
+            },
+            gripper_pose=arrays["gripper_pose"][i],
+            gripper_open=1.0,
+            finger_positions=np.array([0.04, 0.04]),
+            joint_positions=np.zeros(7),
+            joint_velocities=np.zeros(7),
+            step=i,
         )
         for i in range(2)
     ]
-    cfg = QAttentionConfig(voxel_size=8, kernels=8, head_width=16, padding="zeros", cameras=("front", "wrist"), image_crop=16)
+    cfg = QAttentionConfig(
+        voxel_size=8, kernels=8, head_width=16, padding="zeros", cameras=("front", "wrist"), image_crop=16
+    )
     obs = ObservationBatch.from_observations(observations, cfg.cameras, scene_bounds=cfg.scene_bounds)
     result = C2FARM(cfg, seed=0).act(obs)
     assert result.action.shape == (2, 8) and result.action.dtype == np.float32

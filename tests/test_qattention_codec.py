@@ -6,8 +6,8 @@ import numpy as np
 import torch
 
 from qattention import QAttentionConfig, decode_action, encode_action
-from qattention.proprioception import proprioception
 from qattention.action_codec import crop_noise, decode_translation, rotation_to_bins
+from qattention.proprioception import proprioception
 from qattention.rotation import euler_to_quaternion, quaternion_to_euler, quaternion_to_matrix
 from qattention.voxelise import child_bounds, voxel_resolution
 
@@ -17,7 +17,11 @@ SCENE = torch.tensor(CFG.scene_bounds)
 
 def rot(axis, deg):
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    m = {"x": [[1, 0, 0], [0, c, -s], [0, s, c]], "y": [[c, 0, s], [0, 1, 0], [-s, 0, c]], "z": [[c, -s, 0], [s, c, 0], [0, 0, 1]]}
+    m = {
+        "x": [[1, 0, 0], [0, c, -s], [0, s, c]],
+        "y": [[c, 0, s], [0, 1, 0], [-s, 0, c]],
+        "z": [[c, -s, 0], [s, c, 0], [0, 0, 1]],
+    }
     return torch.tensor(m[axis], dtype=torch.float64)
 
 

@@ -2,14 +2,7 @@
 
 import torch
 
-from qattention.voxelise import (
-    child_bounds,
-    flat_index,
-    point_to_voxel_index,
-    unflatten_index,
-    voxel_centre,
-    voxelise,
-)
+from qattention.voxelise import child_bounds, flat_index, point_to_voxel_index, unflatten_index, voxel_centre, voxelise
 
 BOUNDS = torch.tensor([-0.3, -0.5, 0.6, 0.7, 0.5, 1.6])  # the reference's 1 m cube
 V = 16

@@ -27,8 +27,12 @@ def test_agent_rows_come_back_bit_identical_and_demo_rows_turn():
     b = top_down_batch()
     out = augment_yaw(b, 45.0, torch.Generator().manual_seed(0))
     agent, demo = ~b.is_demo, b.is_demo
-    for before, after in [(b.obs.points["front"], out.obs.points["front"]), (b.action, out.action),
-                          (b.obs.gripper_pose, out.obs.gripper_pose), (b.next_obs.points["front"], out.next_obs.points["front"])]:
+    for before, after in [
+        (b.obs.points["front"], out.obs.points["front"]),
+        (b.action, out.action),
+        (b.obs.gripper_pose, out.obs.gripper_pose),
+        (b.next_obs.points["front"], out.next_obs.points["front"]),
+    ]:
         assert torch.equal(before[agent], after[agent])
         assert not torch.equal(before[demo], after[demo])
     # The target point stays where it is; heights never change; points keep their distance to it.

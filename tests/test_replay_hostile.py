@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 import zenoh
 import zmq
-
 from conftest import get_free_port, wait_for
+from synthetic_episodes import synthetic_episode
+
 from protocol import keys
 from protocol.codec import encode_frame
 from protocol.fabric import FabricConfig, open_session
@@ -25,7 +26,6 @@ from replay_server.config import ReplayConfig
 from replay_server.fair_queue import FairQueue
 from replay_server.rejections import protocol_reason
 from replay_server.service import ReplayService
-from replay_server.testing import synthetic_episode
 
 SIZE = 8
 
@@ -238,7 +238,7 @@ def test_impersonation_does_not_suppress_the_real_actors_episodes(make_replay):
         send(real_pub, synthetic_episode("a0", 10, size=SIZE), sourced=False)  # a true resend is still a duplicate
         c = r.wait(lambda c: c["duplicates"] == 1)
         assert c["episodes_stored"] == 10
-        stored = {(e.actor_id, e.episode_id, e.timeout) for e in r.service.store.episodes.values()}
+        stored = {(e.actor_id, e.episode_id, e.timeout) for e in r.service.store.ring.episodes.values()}
         assert {("a0", e, False) for e in (*range(6), 10, 11)} <= stored
     finally:
         real.close()
@@ -350,7 +350,7 @@ def test_bad_priority_updates_are_rejected_counted_and_never_applied(make_replay
     r.wait(lambda c: c["episodes_stored"] == 1)
     with ReplayClient(r.zmq, batch_size=4, prefetch=1) as client:
         a = client.sample(timeout_s=10).arrays
-    before = r.service.store.tree.leaves().copy()
+    before = r.service.store.priorities.tree.leaves().copy()
     idx, k = np.array(a["indices"]), np.array(a["keys"])
 
     def update(indices, item_keys, priorities) -> bytes:
@@ -368,7 +368,7 @@ def test_bad_priority_updates_are_rejected_counted_and_never_applied(make_replay
     c = r.wait(lambda c: c["priority_updates_rejected"] == 5)
     assert c["zmq_rejected_priorities_nonfinite"] >= 2 and c["zmq_rejected_priorities_range"] == 1
     assert c["zmq_rejected_priorities_length"] == 1
-    assert c["priority_updates"] == 0 and np.array_equal(r.service.store.tree.leaves(), before)
+    assert c["priority_updates"] == 0 and np.array_equal(r.service.store.priorities.tree.leaves(), before)
     with ReplayClient(r.zmq, batch_size=4, prefetch=1) as client:  # a sane one is applied
         client.update_priorities(idx, k, np.full(4, 3.0))
         r.wait(lambda c: c["priority_updates"] == 4)

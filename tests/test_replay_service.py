@@ -16,14 +16,14 @@ import numpy as np
 import psutil
 import pytest
 import zenoh
+from synthetic_episodes import actor_tag, synthetic_episode
 
 from protocol import keys
 from protocol.codec import PROTOCOL_VERSION
 from protocol.fabric import FabricConfig, open_session
 from protocol.messages import AckStatus, EpisodeAck, Status, decode, encode
-from replay_server.checkpoint import load_latest
 from protocol.sample_wire import ReplayClient, ReplayTimeout
-from replay_server.testing import actor_tag, synthetic_episode
+from replay_server.checkpoint_files import load_latest
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = 16  # image side in these tests (the benchmark uses 128)
@@ -116,7 +116,7 @@ class Harness:
 
     def start_actor(self, actor_id: str, episodes: int, **opts) -> tuple[subprocess.Popen, Path]:
         out = self.tmp / f"{actor_id}-{len(self.procs)}.json"
-        cmd = [sys.executable, "-m", "replay_server.testing", "actor", "--connect", self.fabric.endpoint,
+        cmd = [sys.executable, str(ROOT / "bench" / "fake_actor.py"), "--connect", self.fabric.endpoint,
                "--run-id", self.fabric.run_id, "--actor-id", actor_id, "--episodes", str(episodes),
                "--size", str(SIZE), "--out", str(out)]
         for k, v in opts.items():

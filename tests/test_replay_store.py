@@ -6,13 +6,13 @@ import shutil
 
 import numpy as np
 import pytest
+from synthetic_episodes import actor_tag, synthetic_episode
 
-from replay_server.checkpoint import list_checkpoints, load_checkpoint, load_latest, write_checkpoint
+from replay_server.checkpoint_files import list_checkpoints, load_checkpoint, load_latest, write_checkpoint
 from replay_server.config import ReplayConfig, apply_overrides
 from replay_server.ratelimiter import RateLimiter
 from replay_server.storage import EpisodeStore
 from replay_server.sumtree import SumTree
-from replay_server.testing import actor_tag, synthetic_episode
 from replay_server.wal import WriteAheadLog, list_segments, read_segment, segment_path
 
 
@@ -72,8 +72,8 @@ def test_sampling_frequencies_match_priorities():
     store = make_store(capacity_transitions=64)
     fill(store, 6)  # 60 items
     rng = np.random.default_rng(1234)
-    slots = np.array([ep.slots for ep in store.episodes.values()]).reshape(-1)
-    keys = store.slot_key[slots]
+    slots = np.array([ep.slots for ep in store.ring.episodes.values()]).reshape(-1)
+    keys = store.priorities.slot_key[slots]
     prio = rng.uniform(0.1, 3.0, len(slots)).astype(np.float32)
     store.update_priorities(slots, keys, prio)
     n = 60_000
@@ -91,14 +91,14 @@ def test_sampling_frequencies_match_priorities():
 def test_importance_weights_match_reference_formula():
     store = make_store()
     fill(store, 3)
-    slots = np.concatenate([ep.slots for ep in store.episodes.values()])
+    slots = np.concatenate([ep.slots for ep in store.ring.episodes.values()])
     p = np.linspace(0.1, 2.0, len(slots))
-    store.update_priorities(slots, store.slot_key[slots], p)
+    store.update_priorities(slots, store.priorities.slot_key[slots], p)
     s, k, probs, w, eps, ts = store.sample(64, np.random.default_rng(0), 0.5)
-    raw = store.tree.get(s)
+    raw = store.priorities.tree.get(s)
     ref = 1 / np.sqrt(raw + 1e-10)  # reference: w = 1/sqrt(p) / max
     assert np.allclose(w, ref / ref.max(), rtol=1e-5)
-    assert np.allclose(probs, raw / store.tree.total, rtol=1e-6)
+    assert np.allclose(probs, raw / store.priorities.tree.total, rtol=1e-6)
 
 
 def test_new_items_get_max_priority_and_stale_updates_are_ignored():
@@ -107,12 +107,12 @@ def test_new_items_get_max_priority_and_stale_updates_are_ignored():
     s, k, *_ = store.sample(5, np.random.default_rng(0), 0.5)
     assert store.update_priorities(s[:1], k[:1], [5.0]) == (1, 0)
     new = fill(store, 1, start=3)  # evicts episode 0, reuses its slots with new keys
-    assert store.tree.get(store.episodes[3].slots).tolist() == [5.0] * 10  # running max
+    assert store.priorities.tree.get(store.ring.episodes[3].slots).tolist() == [5.0] * 10  # running max
     old_slots = np.arange(30)
     old_keys = np.arange(30)  # keys 0..9 were episode 0's: now stale
     applied, stale = store.update_priorities(old_slots, old_keys, np.full(30, 9.0, np.float32))
     assert stale == 10 and applied == 20
-    assert store.tree.get(store.episodes[3].slots).tolist() == [5.0] * 10
+    assert store.priorities.tree.get(store.ring.episodes[3].slots).tolist() == [5.0] * 10
     assert store.counters["stale_priority_updates"] == 10
     assert store.update_priorities([1000], [0], [1.0]) == (0, 1)  # out of range: ignored
     assert new[0].episode_id == 3
@@ -136,13 +136,13 @@ def test_n_step_transitions_reach_n_decisions_ahead_and_stop_at_the_episode_end(
         by_key = {(actor_tag(e.actor_id), e.episode_id): e for e in eps}
         _, _, _, _, sampled, ts = store.sample(64, np.random.default_rng(0), 0.5)
         batch = store.gather(sampled, ts)
-        assert batch["rewards"].shape == (64, 3)
+        assert batch["n_rewards"].shape == (64, 3)
         for i, (tag, eid, t) in enumerate(batch["extra_tag"]):
             ep = by_key[(int(tag), int(eid))]
             m = min(3, ep.num_steps - t)  # 5 steps: t = 3 sees 2 decisions, t = 4 one
             assert batch["bootstrap_steps"][i] == m
             assert tuple(batch["extra_tag_tp1"][i]) == (tag, eid, t + m)  # the observation m decisions on
-            assert batch["rewards"][i].tolist() == [*ep.rewards[t : t + m], *[0.0] * (3 - m)]
+            assert batch["n_rewards"][i].tolist() == [*ep.rewards[t : t + m], *[0.0] * (3 - m)]
             assert batch["reward"][i] == ep.rewards[t]
             assert batch["terminal"][i] == ep.terminals[t + m - 1]
             assert batch["timeout"][i] == (ep.timeout and t + m == ep.num_steps)
@@ -153,7 +153,7 @@ def test_one_step_batches_carry_no_n_step_fields():
     store = make_store()
     fill(store, 2, size=8)
     _, _, _, _, sampled, ts = store.sample(8, np.random.default_rng(0), 0.5)
-    assert not {"rewards", "bootstrap_steps"} & set(store.gather(sampled, ts))
+    assert not {"n_rewards", "bootstrap_steps"} & set(store.gather(sampled, ts))
 
 
 def test_eviction_by_transitions_bytes_and_demo_keeping():
@@ -161,15 +161,15 @@ def test_eviction_by_transitions_bytes_and_demo_keeping():
     fill(store, 2, actor="demo", is_demo=True)
     fill(store, 10, actor="live")
     assert store.size == 50 and store.num_episodes == 5
-    assert sum(e.is_demo for e in store.episodes.values()) == 2
-    assert [e.episode_id for e in store.episodes.values() if not e.is_demo] == [7, 8, 9]
+    assert sum(e.is_demo for e in store.ring.episodes.values()) == 2
+    assert [e.episode_id for e in store.ring.episodes.values() if not e.is_demo] == [7, 8, 9]
 
     one = EpisodeStore(ReplayConfig(capacity_transitions=1000)).insert(synthetic_episode(size=8)).nbytes
     store = make_store(capacity_transitions=1000, capacity_bytes=int(one * 3.5), keep_demos=False)
     fill(store, 2, actor="demo", is_demo=True)
     fill(store, 4, actor="live")
     assert store.num_episodes == 3 and store.bytes <= store.config.capacity_bytes
-    assert not any(e.is_demo for e in store.episodes.values())  # keep_demos=False: plain FIFO
+    assert not any(e.is_demo for e in store.ring.episodes.values())  # keep_demos=False: plain FIFO
 
 
 def test_duplicates_and_schema_mismatch():
@@ -184,7 +184,7 @@ def test_duplicates_and_schema_mismatch():
 
 
 def test_dedup_is_by_payload_digest_and_bounded():
-    from replay_server.storage import _dedup_entries
+    from replay_server.episode_dedup import _dedup_entries
 
     store = make_store(dedup_max_actors=2)
     store.insert(synthetic_episode("a", 0, size=8), "d1")
@@ -196,7 +196,7 @@ def test_dedup_is_by_payload_digest_and_bounded():
     assert store.is_duplicate("a", 0) and not store.is_duplicate("a", 1)  # no digest: by id, as before
     fill(store, 1, actor="b")
     fill(store, 1, actor="c")  # the least recently stored actor's memory goes first
-    assert list(store.dedup) == ["b", "c"]
+    assert list(store.dedup.by_actor) == ["b", "c"]
 
 
 def test_rate_limiter_holds_ratio():
@@ -242,18 +242,18 @@ def mixed_store(demos=1, agents=60, **kw) -> EpisodeStore:
 
 def set_random_priorities(store, rng, low=0.1, high=3.0) -> np.ndarray:
     """Give every stored item a random priority; returns them indexed by slot."""
-    slots = np.concatenate([ep.slots for ep in store.episodes.values()])
-    store.update_priorities(slots, store.slot_key[slots], rng.uniform(low, high, len(slots)))
-    return store.tree.leaves()
+    slots = np.concatenate([ep.slots for ep in store.ring.episodes.values()])
+    store.update_priorities(slots, store.priorities.slot_key[slots], rng.uniform(low, high, len(slots)))
+    return store.priorities.tree.leaves()
 
 
 def test_demo_count_rounds_and_keeps_both_tables():
     store = mixed_store()
-    assert [store.demo_count(8, f) for f in (0.25, 0.01, 0.99, 1.0)] == [2, 1, 7, 8]
-    assert store.demo_count(10, 0.25) == 3 and store.demo_count(128, 0.25) == 32  # round half up
-    assert store.demo_count(1, 0.25) == 0 and store.demo_count(1, 0.5) == 1  # no room for both
-    assert store.demo_count(8, 0.0) is None  # the reference: one table over everything
-    assert make_store().demo_count(8, 0.25) is None  # nothing stored: nothing to split
+    assert [store.priorities.demo_count(8, f) for f in (0.25, 0.01, 0.99, 1.0)] == [2, 1, 7, 8]
+    assert store.priorities.demo_count(10, 0.25) == 3 and store.priorities.demo_count(128, 0.25) == 32  # round half up
+    assert store.priorities.demo_count(1, 0.25) == 0 and store.priorities.demo_count(1, 0.5) == 1  # no room for both
+    assert store.priorities.demo_count(8, 0.0) is None  # the reference: one table over everything
+    assert make_store().priorities.demo_count(8, 0.25) is None  # nothing stored: nothing to split
 
 
 def test_demo_fraction_gives_every_batch_its_demo_share():
@@ -274,9 +274,9 @@ def test_demo_fraction_gives_every_batch_its_demo_share():
 def test_demo_table_sampling_follows_priorities():
     store = mixed_store(demos=2, capacity_transitions=700)
     prio = set_random_priorities(store, np.random.default_rng(2))
-    demo_slots = np.flatnonzero(store.slot_demo)
+    demo_slots = np.flatnonzero(store.priorities.slot_demo)
     favourite = demo_slots[7]
-    store.update_priorities([favourite], store.slot_key[[favourite]], [30.0])
+    store.update_priorities([favourite], store.priorities.slot_key[[favourite]], [30.0])
     prio[favourite] = 30.0
     rng = np.random.default_rng(3)
     counts = np.zeros(store.capacity)
@@ -295,8 +295,8 @@ def test_importance_weights_are_per_table():
     store = mixed_store()
     prio = set_random_priorities(store, np.random.default_rng(4))
     s, k, probs, w, eps, ts = store.sample(64, np.random.default_rng(5), 0.5, demo_fraction=0.25)
-    demo = store.slot_demo[s]
-    table_total = np.where(demo, prio[store.slot_demo].sum(), prio[~store.slot_demo].sum())
+    demo = store.priorities.slot_demo[s]
+    table_total = np.where(demo, prio[store.priorities.slot_demo].sum(), prio[~store.priorities.slot_demo].sum())
     table_size = np.where(demo, store.demo_size, store.agent_size)
     assert np.allclose(probs, prio[s] / table_total, rtol=1e-6)  # P(i) within i's table
     ref = (table_size * prio[s] / table_total) ** -0.5
@@ -336,21 +336,23 @@ def test_evicting_agent_episodes_keeps_the_demo_table():
     store = make_store(capacity_transitions=50, keep_demos=True)
     fill(store, 1, actor="demo", is_demo=True)
     fill(store, 3, actor="live")
-    demo_slots = np.flatnonzero(store.slot_demo)
-    store.update_priorities(demo_slots, store.slot_key[demo_slots], np.arange(1.0, 11.0))
-    demo_total = store.tables[1].total
+    demo_slots = np.flatnonzero(store.priorities.slot_demo)
+    store.update_priorities(demo_slots, store.priorities.slot_key[demo_slots], np.arange(1.0, 11.0))
+    demo_total = store.priorities.tables[1].total
     fill(store, 10, actor="live", start=3)  # evicts agent episodes only
     assert store.counters["episodes_evicted"] == 9 and (store.demo_size, store.agent_size) == (10, 40)
-    assert store.tables[1].total == demo_total and np.array_equal(np.flatnonzero(store.slot_demo), demo_slots)
-    agent, demo = store.tables[0].leaves(), store.tables[1].leaves()
-    assert not (agent * demo).any() and np.array_equal(agent + demo, store.tree.leaves())  # each slot in one table
+    assert store.priorities.tables[1].total == demo_total
+    assert np.array_equal(np.flatnonzero(store.priorities.slot_demo), demo_slots)
+    agent, demo = store.priorities.tables[0].leaves(), store.priorities.tables[1].leaves()
+    assert not (agent * demo).any()  # each slot in one table
+    assert np.array_equal(agent + demo, store.priorities.tree.leaves())
     eps = store.sample(8, np.random.default_rng(10), 0.5, demo_fraction=0.25)[4]
     assert sum(ep.is_demo for ep in eps) == 2
     # without keep_demos the demo episode ages out like any other, and its table empties
     plain = make_store(capacity_transitions=50, keep_demos=False)
     fill(plain, 1, actor="demo", is_demo=True)
     fill(plain, 5, actor="live")
-    assert plain.demo_size == 0 and plain.tables[1].total == 0.0
+    assert plain.demo_size == 0 and plain.priorities.tables[1].total == 0.0
     assert not any(ep.is_demo for ep in plain.sample(8, np.random.default_rng(11), 0.5, demo_fraction=0.25)[4])
 
 
@@ -361,8 +363,8 @@ def test_demo_share_survives_checkpoint_restore(tmp_path):
     restored = make_store(capacity_transitions=store.capacity, compression="zstd")
     restored.restore(load_checkpoint(write_checkpoint(tmp_path, store.snapshot()).path))
     assert (restored.demo_size, restored.agent_size) == (store.demo_size, store.agent_size)
-    assert np.array_equal(restored.slot_demo, store.slot_demo)
-    for mine, theirs in zip(restored.tables, store.tables):
+    assert np.array_equal(restored.priorities.slot_demo, store.priorities.slot_demo)
+    for mine, theirs in zip(restored.priorities.tables, store.priorities.tables):
         assert np.array_equal(mine.leaves(), theirs.leaves())
     assert restored.counters["demo_transitions_sampled"] == 2
     a = store.sample(8, np.random.default_rng(14), 0.5, demo_fraction=0.25)
@@ -396,16 +398,17 @@ def test_checkpoint_restore_is_exact(tmp_path, compression):
     loaded = load_checkpoint(result.path)
     restored.restore(loaded)
     assert loaded.extra == json.loads(json.dumps(snap.extra))
-    assert np.array_equal(restored.tree.leaves(), store.tree.leaves())
-    for name in ("slot_key", "slot_serial", "slot_t"):
-        assert np.array_equal(getattr(restored, name), getattr(store, name)), name
-    assert np.array_equal(restored.free[: restored.n_free], store.free[: store.n_free])
+    assert np.array_equal(restored.priorities.tree.leaves(), store.priorities.tree.leaves())
+    assert np.array_equal(restored.priorities.slot_key, store.priorities.slot_key)
+    for name in ("slot_serial", "slot_t"):
+        assert np.array_equal(getattr(restored.ring, name), getattr(store.ring, name)), name
+    assert np.array_equal(restored.ring.free[: restored.ring.n_free], store.ring.free[: store.ring.n_free])
     assert restored.counters == store.counters and restored.bytes == store.bytes
-    assert (restored.next_key, restored.next_serial, restored.max_priority) == (
-        store.next_key, store.next_serial, store.max_priority)
-    assert restored.dedup == store.dedup and restored.schema == store.schema
-    for serial, ep in store.episodes.items():
-        other = restored.episodes[serial]
+    assert (restored.priorities.next_key, restored.ring.next_serial, restored.priorities.max_priority) == (
+        store.priorities.next_key, store.ring.next_serial, store.priorities.max_priority)
+    assert restored.dedup.by_actor == store.dedup.by_actor and restored.schema == store.schema
+    for serial, ep in store.ring.episodes.items():
+        other = restored.ring.episodes[serial]
         assert other.meta() == ep.meta() and np.array_equal(other.slots, ep.slots)
         for name, a in ep.arrays.items():
             assert a.tobytes() == other.arrays[name].tobytes() and a.dtype == other.arrays[name].dtype
@@ -465,7 +468,10 @@ def test_batch_wire_roundtrip_and_malformed_frames():
     from protocol.sample_wire import batch_frames, parse_batch
 
     arrays = {"a": np.arange(12, dtype=np.float16).reshape(3, 4), "b": np.array([True, False]), "c": np.zeros((0, 2))}
-    frames = [bytes(memoryview(f)) if isinstance(f, np.ndarray) else f for f in batch_frames(SampleBatch(7, arrays, "", {"x": 1.0}))]
+    frames = [
+        bytes(memoryview(f)) if isinstance(f, np.ndarray) else f
+        for f in batch_frames(SampleBatch(7, arrays, "", {"x": 1.0}))
+    ]
     out = parse_batch(frames)
     assert out.request_id == 7 and out.info == {"x": 1.0}
     assert all(out.arrays[k].tobytes() == v.tobytes() and out.arrays[k].shape == v.shape for k, v in arrays.items())

@@ -62,10 +62,10 @@ def test_a_bad_waypoints_file_is_one_line_before_the_arm_moves(tmp_path, capsys)
 def test_a_mistyped_waypoint_is_typed_again(monkeypatch, capsys):
     import io
 
-    from deploy.cli import _typed_waypoints
+    from deploy.robot_demos import typed_waypoints
 
     monkeypatch.setattr("sys.stdin", io.StringIO("0.5 0.1 0.3 open via\n0.5 0.1 close\n0.5 0.1 0.15 close\n\n"))
-    waypoints = _typed_waypoints()
+    waypoints = typed_waypoints()
     assert [(list(w.pose[:3]), w.gripper_open, w.keyframe) for w in waypoints] == [
         ([0.5, 0.1, 0.3], True, False), ([0.5, 0.1, 0.15], False, True)]
     assert "type it again" in capsys.readouterr().out
@@ -73,7 +73,14 @@ def test_a_mistyped_waypoint_is_typed_again(monkeypatch, capsys):
 
 def test_more_cameras_than_an_observation_holds_is_an_error_not_a_silent_drop():
     with pytest.raises(ConfigError, match="at most 4 cameras"):
-        resolve("robot", "--run-id", "r1", "--robot", "franka", *[w for s in "12345" for w in ("--camera", f"realsense:{s}")])
+        resolve(
+            "robot",
+            "--run-id",
+            "r1",
+            "--robot",
+            "franka",
+            *[w for s in "12345" for w in ("--camera", f"realsense:{s}")],
+        )
 
 
 def test_the_robot_preset_falls_back_to_poses_the_safety_limits_allow():

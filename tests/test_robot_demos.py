@@ -67,7 +67,7 @@ def _first_episode_targets(path) -> np.ndarray:
 
 def test_a_robot_demo_loads_in_the_demo_source_with_the_operators_keyframes(robot_demo, tmp_path):
     from actors.demos.augmentation import keyframe_action
-    from actors.demos.mcap_io import load_demo, write_demo
+    from protocol.episode_file import load_demo, write_demo
 
     assert robot_demo.keyframes == robot_demo.waypoint_frames[1:]  # the via-point's end is no keyframe
     path = tmp_path / "robot-demo-0.mcap"
@@ -83,7 +83,7 @@ def test_a_robot_demo_without_operator_keyframes_loads_through_discovery(robot_d
     """Files recorded before operator keyframes: the reference rule, which also stops at the via-point."""
     from actors.demos.augmentation import keyframe_action
     from actors.demos.keyframes import discover_keyframes
-    from actors.demos.mcap_io import load_demo, write_demo
+    from protocol.episode_file import load_demo, write_demo
 
     path = tmp_path / "robot-demo-old.mcap"
     write_demo(path, dataclasses.replace(robot_demo, keyframes=None))

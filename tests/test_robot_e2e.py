@@ -20,9 +20,16 @@ from pathlib import Path
 
 import httpx
 import pytest
-
-from conftest import (REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, status_reader, stop_launcher,
-                      wait_for)
+from conftest import (
+    REPO,
+    TINY_TRAINING,
+    Descendants,
+    get_free_port,
+    kill_launcher,
+    status_reader,
+    stop_launcher,
+    wait_for,
+)
 
 pytest.importorskip("franky")
 pytest.importorskip("franky_sim")
@@ -52,7 +59,7 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )
     lines: list[str] = []
-    threading.Thread(target=lambda: lines.extend(l.rstrip() for l in launcher.stdout), daemon=True).start()
+    threading.Thread(target=lambda: lines.extend(line.rstrip() for line in launcher.stdout), daemon=True).start()
     children = Descendants(launcher.pid)
     done = threading.Event()
     try:

@@ -15,14 +15,15 @@ import pytest
 pytest.importorskip("franky")
 pytest.importorskip("franky_sim")
 
+from actors.environment import SUCCESS_REWARD  # noqa: E402
 from actors.robot.config import FrankaConfig, RobotConfig, SafetyConfig  # noqa: E402
-from actors.robot.env import OperatorStopped, ReachOperator, RobotEnv  # noqa: E402
+from actors.robot.env import OperatorStopped, RobotEnv  # noqa: E402
 from actors.robot.franka import FrankaArm  # noqa: E402
 from actors.robot.franky_sim import FrankySim  # noqa: E402
 from actors.robot.operator import OperatorChannel  # noqa: E402
+from actors.robot.reach_operator import ReachOperator  # noqa: E402
 from actors.robot.safety import Safety  # noqa: E402
-from actors.sim.env import SUCCESS_REWARD  # noqa: E402
-from protocol.episode import EXTRA_PREFIX, stack_observations  # noqa: E402
+from protocol.episode import stack_observations  # noqa: E402
 from protocol.messages import OperatorAction  # noqa: E402
 from qattention.batch import ObservationBatch  # noqa: E402
 
@@ -98,10 +99,9 @@ def test_every_observation_carries_the_robot_box_to_the_learner(rig):
     box = (0.2, -0.4, 0.0, 0.75, 0.4, 0.6)  # the default safety workspace, from the table top (z = 0) up
     first = env.reset(seed=8)
     last = env.step(np.array([*sim.target, *DOWN, 1.0])).observation
-    # On the wire: ``extra_scene_bounds`` per observation; the learner strips the prefix and
-    # voxelises each sample in the box it carries, whatever its own config says.
-    arrays = {k.removeprefix(EXTRA_PREFIX): v for k, v in stack_observations([first, last]).items()}
-    batch = ObservationBatch.from_arrays(arrays, ["front"])
+    # On the wire and in a batch: ``extra_scene_bounds`` per observation; the learner voxelises
+    # each sample in the box it carries, whatever its own config says.
+    batch = ObservationBatch.from_arrays(stack_observations([first, last]), ["front"])
     assert batch.bounds((-0.1, -0.5, -0.05, 0.9, 0.5, 0.95)).numpy() == pytest.approx(np.array([box, box]))
 
 

@@ -18,8 +18,8 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from actors.robot.operator import FabricOperator, OperatorChannel, TerminalOperator
-from dashboard.operator import OperatorPublisher
-from dashboard.operator import router as operator_routes
+from dashboard.operator_buttons import OperatorPublisher
+from dashboard.operator_buttons import router as operator_routes
 from protocol.codec import ProtocolError
 from protocol.fabric import open_session
 from protocol.messages import OperatorAction, OperatorCommand, decode, encode, encode_unchecked

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from actors.sim import PandaEnv, SimConfig
+from actors.panda_env import PandaEnv
+from actors.sim import SimConfig
 
 
 @pytest.fixture(scope="module")

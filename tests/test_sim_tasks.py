@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from actors.sim import TASKS, PandaEnv, SimConfig, UnknownTaskError, make_task
+from actors.panda_env import PandaEnv
+from actors.sim import TASKS, SimConfig, UnknownTaskError, make_task
 
 
 def test_unknown_task_lists_the_known_ones():

@@ -16,9 +16,17 @@ import threading
 from pathlib import Path
 
 import httpx
+from conftest import (
+    REPO,
+    TINY_TRAINING,
+    Descendants,
+    get_free_port,
+    kill_launcher,
+    status_reader,
+    stop_launcher,
+    wait_for,
+)
 
-from conftest import (REPO, TINY_TRAINING, Descendants, get_free_port, kill_launcher, status_reader, stop_launcher,
-                      wait_for)
 from learner.checkpoint import complete_checkpoints
 
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
@@ -45,7 +53,7 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )
     lines: list[str] = []
-    threading.Thread(target=lambda: lines.extend(l.rstrip() for l in launcher.stdout), daemon=True).start()
+    threading.Thread(target=lambda: lines.extend(line.rstrip() for line in launcher.stdout), daemon=True).start()
     children = Descendants(launcher.pid)
 
     run_dir = tmp_path / "runs" / "e2e"
@@ -77,15 +85,20 @@ def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path
                 180, "the learner to be restarted",
             )
             assert back["learner"]["counters"]["updates"] >= saved_step
-            resumed = wait_for(lambda: [int(m[1]) for l in lines if (m := RESUMED.search(l))],
+            resumed = wait_for(lambda: [int(m[1]) for line in lines if (m := RESUMED.search(line))],
                                30, "the restarted learner to say it resumed")
             assert resumed[-1] >= saved_step
             version_before = back["learner"]["counters"]["weights_version"]
-            wait_for(lambda: (s := status()) and s["learner"]["counters"]["updates"] > back["learner"]["counters"]["updates"],
-                     180, "the resumed learner to keep updating")
+            wait_for(
+                lambda: (
+                    (s := status()) and s["learner"]["counters"]["updates"] > back["learner"]["counters"]["updates"]
+                ),
+                180,
+                "the resumed learner to keep updating",
+            )
             assert status()["learner"]["counters"]["weights_version"] >= version_before  # versions never go back
             # the console's progress line (every 5 s here), from the dashboard's summary
-            wait_for(lambda: any(re.search(r"progress: \S+ \| updates [\d,]+", l) for l in lines), 60,
+            wait_for(lambda: any(re.search(r"progress: \S+ \| updates [\d,]+", line) for line in lines), 60,
                      "a progress line on the console")
             # the evaluator has evaluated a version (eval.csv and TensorBoard get it)
             wait_for(lambda: (s := status()) and s.get("eval", {}).get("counters", {}).get("eval_version", 0) >= 1,

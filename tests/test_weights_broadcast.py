@@ -5,9 +5,9 @@ import time
 
 import torch
 
-from actors.weights import WeightsFollower, tensors_from_update
-from learner.weights import WeightsPublisher
 from protocol.fabric import FabricConfig, open_session
+from protocol.weights_follower import WeightsFollower, tensors_from_update
+from protocol.weights_publisher import WeightsPublisher
 
 
 def _free_port() -> int:

@@ -4,20 +4,20 @@ the versions the learner announces, so no crafted message on the weights key can
 import numpy as np
 import pytest
 import torch
+from conftest import wait_for
 
 from actors.actor_loop import ActingPolicy
 from actors.config import ActorConfig
-from actors.weights import WeightsFollower
-from conftest import wait_for
 from learner.config import LearnerConfig
 from learner.train import Learner
-from learner.weights import WeightsPublisher
 from protocol import Status, WeightsUpdate, encode, keys
 from protocol.codec import encode_frame
-from protocol.messages import Kind
 from protocol.fabric import open_session
 from protocol.heartbeat import Heartbeat
+from protocol.messages import Kind
 from protocol.role import RoleContext
+from protocol.weights_follower import WeightsFollower
+from protocol.weights_publisher import WeightsPublisher
 from qattention import QAttentionConfig
 from qattention.digest import network_digest
 

@@ -11,12 +11,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.control.collision import CollisionWorld
 from actors.control.ik import IKSolver
 from actors.control.planner import MotionPlanner, Plan
 from actors.control.trajectory import parameterise
+from actors.sim.bullet import p
 from actors.sim.scene import PandaScene
 
 #: Why a pose could not be reached.

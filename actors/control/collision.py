@@ -1,7 +1,8 @@
 """The planner's collision world: a second PyBullet DIRECT client mirroring robot, table and obstacles.
 
 Planning teleports the arm thousands of times; doing it in the physics client would disturb the
-simulation, so it happens here (feasibility.md section 2).
+simulation (PyBullet has one state per client, and resetting joints mid-step perturbs contacts), so
+it happens here.
 """
 
 from __future__ import annotations
@@ -9,8 +10,8 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from actors.sim.bullet import p
 
+from actors.sim.bullet import p
 from actors.sim.scene import FINGER_JOINTS, GRASP_LINK, HOME, add_table, load_panda, set_arm
 
 HAND_LINKS = {7, 8, 9, 10, 11}
@@ -69,7 +70,7 @@ class CollisionWorld:
         p.performCollisionDetection(physicsClientId=self.client)
         found = []
         for c in p.getContactPoints(bodyA=self.robot, physicsClientId=self.client):
-            if c[8] > 0.0:  # within the contact threshold but not touching (feasibility gotcha)
+            if c[8] > 0.0:  # contact points come with a positive distance up to the threshold: not touching
                 continue
             other, la, lb = c[2], c[3], c[4]
             if other == self.robot:

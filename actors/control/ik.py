@@ -13,10 +13,10 @@ elbow/wrist configuration whose joint-space path sweeps the hand through nearby 
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.control.collision import CollisionWorld
 from actors.control.limits import LOWER, UPPER
+from actors.sim.bullet import p
 from actors.sim.scene import GRASP_LINK, HOME, set_arm
 
 
@@ -88,7 +88,7 @@ class IKSolver:
         seeds += [np.clip(np.asarray(HOME) + rng.normal(0.0, 0.3 + 1.2 * i / max(n, 1), 7), LOWER, UPPER)
                   for i in range(n)]
         ll, ul = list(LOWER) + [0, 0], list(UPPER) + [0.04, 0.04]
-        ranges = [u - l for l, u in zip(ll, ul)]
+        ranges = [u - lo for lo, u in zip(ll, ul)]
         for i, seed in enumerate(seeds):
             rest = seeds[0] if i == 0 else np.asarray(HOME)  # nearest solution first, see the module docstring
             set_arm(self.world.client, self.world.robot, seed)

@@ -1,4 +1,4 @@
-"""Demo augmentation (c2farm_spec.md section 6.2): one demo becomes several keyframe-to-keyframe episodes.
+"""Demo augmentation (the authors' ARM code): one demo becomes several keyframe-to-keyframe episodes.
 
 From every ``every_n``-th frame i, the agent "jumps" to each later keyframe in turn: obs(i) -> kf1 ->
 ... -> kf_last. The action of a step is the next keyframe's gripper pose + gripper state; the reward

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from actors.sim.task_names import TASKS
+from actors.sim.task_specs import TASKS
 from protocol.observation import CAMERA_NAMES
 
 

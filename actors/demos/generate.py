@@ -9,9 +9,9 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from actors.demos.mcap_io import Demo, write_demo
+from protocol.episode_file import Demo, write_demo
 from actors.sim.config import SimConfig
-from actors.sim.env import PandaEnv
+from actors.panda_env import PandaEnv
 from actors.sim.tasks import make_task
 
 

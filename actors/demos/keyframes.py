@@ -1,4 +1,4 @@
-"""Keyframe (keypoint) discovery, exactly as ARM's ``keypoint_discovery`` (c2farm_spec.md section 6.1).
+"""Keyframe (keypoint) discovery, exactly as ARM's ``keypoint_discovery`` (the authors' code).
 
 A frame is a keyframe when the gripper opens or closes there, when it is the last frame, or when
 the arm has "stopped" (all joint velocities within ``stopping_delta``, the gripper state steady
@@ -19,7 +19,7 @@ import numpy as np
 from protocol.observation import Observation
 
 if TYPE_CHECKING:
-    from actors.demos.mcap_io import Demo
+    from protocol.episode_file import Demo
 
 
 def _is_stopped(demo: Sequence[Observation], i: int, obs: Observation, stopped_buffer: int, delta: float) -> bool:

@@ -14,113 +14,78 @@ so CI drives the very code that drives a real arm.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
 import sys
 import time
 import zlib
+from dataclasses import dataclass
+from typing import TextIO
 
 import torch
 
 from actors.actor_loop import ActingPolicy, Rollout, episode_seed, rollout, to_episode
 from actors.config import ActorConfig
-from actors.evaluation import EvalResult, evaluate, write_snapshot
-from actors.evaluation import append_eval_row
-from actors.outbox import Outbox
+from actors.evaluation import EvalResult, append_eval_row, evaluate, write_snapshot
 from actors.robot.config import RobotConfig
-from actors.robot.env import OperatorStopped, ReachOperator, RobotEnv
-from actors.robot.franka import FrankaArm
+from actors.robot.connect import open_arm
+from actors.robot.env import OperatorStopped, RobotEnv
 from actors.robot.operator import FabricOperator, OperatorChannel, TerminalOperator
-from actors.weights import WeightsFollower
-from protocol.fabric import open_session
-from protocol.heartbeat import Heartbeat
+from actors.robot.reach_operator import ReachOperator
+from actors.role_loop import EpisodeStats, RoleLinks, first_episode_id
 from protocol.messages import WeightsUpdate
 from protocol.role import RoleContext
 from qattention.config import QAttentionConfig
-from qattention.digest import network_digest
 
 log = logging.getLogger("robot")
 
 
-def make_cameras(robot: RobotConfig, sim, stack: contextlib.ExitStack) -> list:
-    """The configured cameras: RealSense devices, or renders of the franky-sim scene."""
-    cameras = []
-    for cam in robot.cameras:
-        if cam.kind == "mujoco":
-            if sim is None:
-                raise ValueError(f"camera {cam.name}: kind mujoco needs robot.arm franky-sim")
-            cameras.append(sim.camera(cam.name, cam.image_size))
-        else:
-            from actors.robot.cameras import load_extrinsics
-            from actors.robot.realsense import RealSenseCamera
+@dataclass
+class RobotSetup:
+    """What the robot actor role is told (``run(setup, ctx)``)."""
 
-            if not cam.extrinsics_file:
-                raise ValueError(f"camera {cam.name}: a RealSense camera needs extrinsics_file (camera-to-base YAML)")
-            camera = RealSenseCamera(cam.name, load_extrinsics(cam.extrinsics_file), cam.serial, cam.image_size)
-            stack.callback(camera.close)
-            cameras.append(camera)
-    return cameras
+    actor: ActorConfig  #: acting, exploration, outbox and evaluation settings (shared with the simulated actor)
+    robot: RobotConfig  #: the arm, its cameras, safety limits and the operator
+    task: str  #: the task's name, for episodes and the heartbeat
+    network: QAttentionConfig  #: the Q-attention cascade, as the learner trains it
+    terminal: TextIO | None = None  #: the operator's text stream (a terminal), if any
 
 
-def open_arm(robot: RobotConfig, stack: contextlib.ExitStack):
-    """(connected arm, franky-sim or None): the configured arm with its cameras, closed by ``stack``.
-
-    ``robot.arm: franky-sim`` starts franky-sim in this process first (loopback, MuJoCo cameras).
-    """
-    sim = None
-    if robot.arm == "franky-sim":
-        from actors.robot.franky_sim import FrankySim, SimSceneConfig
-
-        sim = stack.enter_context(FrankySim(SimSceneConfig(cameras=tuple(c.name for c in robot.cameras))))
-    host = sim.hostname if sim is not None else robot.franka.host
-    arm = FrankaArm(dataclasses.replace(robot.franka, host=host), robot.safety, make_cameras(robot, sim, stack))
-    arm.connect()
-    stack.callback(arm.disconnect)
-    return arm, sim
-
-
-def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionConfig, ctx: RoleContext,
-        terminal=None) -> int:
-    """Collect real episodes until stopped (or ``max_episodes``); ``terminal`` is the operator's text stream."""
+def run(setup: RobotSetup, ctx: RoleContext) -> int:
+    """Collect real episodes until stopped (or ``max_episodes``); the operator may speak through ``setup.terminal``."""
+    config, robot, task, terminal = setup.actor, setup.robot, setup.task, setup.terminal
     torch.set_num_threads(max(1, config.torch_threads))
     torch.manual_seed(ctx.seed + zlib.crc32(ctx.instance.encode()))
-    qconfig = qconfig.replace(epsilon=config.epsilon, scene_bounds=robot.depth0_bounds)
-    stats = {"episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0, "timeouts": 0, "operator_stops": 0,
-             "reach_checks": 0, "reach_replaced": 0}
+    qconfig = setup.network.replace(epsilon=config.epsilon, scene_bounds=robot.depth0_bounds)
+    stats = EpisodeStats()
+    dropped = {"operator_stops": 0}  # episodes an operator stop cut short (not sent)
     with contextlib.ExitStack() as stack:
         arm, sim = open_arm(robot, stack)
         host = arm.config.host
         channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
-        session = open_session(ctx.fabric)
-        stack.callback(session.close)
-        fabric_operator = FabricOperator(session, ctx.run_id, ctx.instance, channel)
+        links = stack.enter_context(RoleLinks(ctx, qconfig, outbox=config))
+        fabric_operator = FabricOperator(links.session, ctx.run_id, ctx.instance, channel)
         stack.callback(fabric_operator.close)
         if terminal is not None:
             operator = stack.enter_context(TerminalOperator(terminal, channel))  # restores the terminal on the way out
             print(operator.help, flush=True)
         scripted = ReachOperator(sim, channel) if robot.scripted_operator else None
         env = RobotEnv(arm, channel, robot, task, qconfig.episode_length, ctx.stop, scripted)
-        follower = WeightsFollower(session, ctx.run_id, network_digest(qconfig))
-        stack.callback(follower.close)
+        follower, outbox = links.follower, links.outbox
         policy = ActingPolicy(qconfig, follower, epsilon=config.epsilon_at)
-        outbox = Outbox(session, ctx.run_id, ctx.instance, config.outbox_size, config.resend_after_s,
-                        config.outbox_wait_s, stop=ctx.stop)
-        stack.callback(outbox.close)
         latest: EvalResult | None = None  # the newest greedy evaluation on this arm, for the heartbeat
 
         def counters() -> dict[str, float]:
-            return {**stats, **outbox.counters, **arm.counters, **arm.safety.counters(), **channel.counters,
+            return {**stats.as_dict(), **dropped, **outbox.counters, **arm.counters, **arm.safety.counters(),
+                    **channel.counters,
                     "outbox_pending": outbox.pending, "weights_version": policy.version, **follower.counters(),
                     "epsilon": policy.agent.config.epsilon, **(latest.counters() if latest else {}),
-                    "operator_rejected": fabric_operator.rejected, "paused": float(channel.paused), "stop_to_still_s": arm.last_stop_s,
-                    "success_rate": stats["successes"] / max(1, stats["episodes"])}
+                    "operator_rejected": fabric_operator.rejected, "paused": float(channel.paused),
+                    "stop_to_still_s": arm.last_stop_s}
 
-        heartbeat = Heartbeat(session, ctx.run_id, "robot", ctx.instance, counters=counters,
-                              info=lambda: {"task": task, "arm": robot.arm, "host": host})
-        stack.callback(heartbeat.close)
+        links.beat("robot", counters, info=lambda: {"task": task, "arm": robot.arm, "host": host})
         policy.wait_for_first(config.weights_wait_s, ctx.stop)
         evaluated, next_evaluation = 0, 0.0
-        first_id, n = int(time.time() * 1000), 0
+        first_id, n = first_episode_id(), 0
         while not ctx.stop.is_set() and not (config.max_episodes and n >= config.max_episodes):
             policy.refresh()
             adopted = policy.adopted
@@ -142,7 +107,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
                 r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop,
                             top_k=config.reachable_top_k)
             except OperatorStopped as why:
-                stats["operator_stops"] += int(channel.paused)
+                dropped["operator_stops"] += int(channel.paused)
                 log.info("episode dropped: %s", why)
                 channel.wait_resumed(ctx.stop)
                 continue
@@ -153,15 +118,7 @@ def run(config: ActorConfig, robot: RobotConfig, task: str, qconfig: QAttentionC
             outbox.send(episode)
             outbox.resend_due()
             n += 1
-            stats["episodes"] += 1
-            stats["env_steps"] += len(r.actions)
-            stats["successes"] += int(r.success)
-            stats["timeouts"] += int(r.timeout)
-            stats["unreachable"] += int(r.reason == "unreachable")
-            if r.unreachable_reason:
-                stats[f"unreachable_{r.unreachable_reason}"] = stats.get(f"unreachable_{r.unreachable_reason}", 0) + 1
-            stats["reach_checks"] += r.reach_checks
-            stats["reach_replaced"] += r.reach_replaced
+            stats.add(r)
             log.info("episode %d: %s after %d decisions (weights v%d)", n, r.reason, len(r.actions), policy.version)
         outbox.flush(timeout_s=2.0)
     return 0

@@ -3,7 +3,7 @@
 A camera returns the simulator's ``CameraFrame``: square RGB, world-frame points (here the
 world is the robot base frame), intrinsics K and camera-to-world extrinsics in OpenCV axes
 (+z forward, +y down), exactly as ``protocol/observation.py`` documents. Depth is lifted to
-points with ``actors.sim.cameras.camera_frame``, the simulator's own unprojection, so a real
+points with ``protocol.observation.camera_frame``, the simulator's own unprojection, so a real
 frame and a simulated one agree to the last bit on the maths.
 
 Extrinsics come from a YAML file (by hand or a hand-eye calibration)::
@@ -21,8 +21,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import yaml
 
-from actors.sim.cameras import camera_frame
-from protocol.observation import CameraFrame
+from protocol.observation import CameraFrame, camera_frame
 
 
 @runtime_checkable

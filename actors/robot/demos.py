@@ -3,7 +3,7 @@
 The operator gives waypoints (a grasp-frame pose and the gripper after it, one per line, in the
 terminal or a file); the arm executes each through the same ``RobotArm`` interface the actor
 uses, while a recorder observes at a fixed rate. The file is the simulator's demo format
-(``actors.demos.mcap_io``), so the demo source sends it unchanged.
+(``protocol.episode_file``), so the demo source sends it unchanged.
 
 Keyframes are where the operator says: each waypoint's end is one, except a via-point's (a
 waypoint only there to steer the path, e.g. around an obstacle). They are stored in the demo
@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from actors.demos.mcap_io import Demo
 from actors.robot.interface import RobotArm, return_home
+from protocol.episode_file import Demo
 from protocol.observation import Observation
 
 TOP_DOWN = (1.0, 0.0, 0.0, 0.0)
@@ -161,10 +161,10 @@ def record_demos(config, waypoints: list[Waypoint], episodes: int, out_dir, ask=
     import contextlib
     from pathlib import Path
 
-    from actors.demos.mcap_io import write_demo
-    from actors.robot.actor import open_arm
-    from actors.robot.env import ReachOperator
+    from actors.robot.connect import open_arm
     from actors.robot.operator import OperatorChannel
+    from actors.robot.reach_operator import ReachOperator
+    from protocol.episode_file import write_demo
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -159,7 +159,9 @@ class FrankaArm:
         if want_open:
             ok = self._gripper.move(OPEN_WIDTH, c.gripper_speed)
         else:  # closing on nothing is a finished close, not a failure: accept any final width
-            ok = self._gripper.grasp(0.0, c.gripper_speed, c.gripper_force, epsilon_inner=0.005, epsilon_outer=OPEN_WIDTH)
+            ok = self._gripper.grasp(
+                0.0, c.gripper_speed, c.gripper_force, epsilon_inner=0.005, epsilon_outer=OPEN_WIDTH
+            )
         if ok:
             self._gripper_open = want_open
         return bool(ok)

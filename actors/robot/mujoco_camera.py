@@ -20,7 +20,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless: before mujoco picks a GL 
 
 import mujoco  # noqa: E402  (after the GL backend is chosen)
 
-from actors.sim.cameras import camera_frame  # noqa: E402
+from protocol.observation import camera_frame  # noqa: E402
 
 #: MuJoCo camera axes (+y up, looking down -z) to OpenCV axes (+y down, looking down +z).
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -1,15 +1,13 @@
-"""The actors' world: PyBullet Panda scene, RLBench-style cameras, the task ladder and PandaEnv.
+"""The simulated world: PyBullet Panda scene, RLBench-style cameras and the task ladder.
 
-Names are resolved lazily so that ``actors.control`` can import ``actors.sim.scene`` without a cycle.
+``PandaEnv`` (``actors.panda_env``) joins this world to the control agent. Names resolve lazily,
+so ``from actors.sim import SimConfig`` (the launcher's config) does not load pybullet.
 """
 
 from importlib import import_module
 
-_EXPORTS = {
-    "SimConfig": "actors.sim.config", "PandaEnv": "actors.sim.env", "StepResult": "actors.sim.env",
-    "SUCCESS_REWARD": "actors.sim.env", "TASKS": "actors.sim.tasks", "UnknownTaskError": "actors.sim.tasks",
-    "make_task": "actors.sim.tasks",
-}
+_EXPORTS = {"SimConfig": "actors.sim.config", "TASKS": "actors.sim.task_specs",
+            "UnknownTaskError": "actors.sim.task_specs", "make_task": "actors.sim.tasks"}
 __all__ = sorted(_EXPORTS)
 
 

@@ -11,9 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from actors.sim.bullet import p
 
-from protocol.observation import CameraFrame
+from actors.sim.bullet import p
 
 NEAR, FAR = 0.01, 4.0
 #: OpenGL camera axes (+y up, looking down -z) to OpenCV axes (+y down, looking down +z).
@@ -74,20 +73,3 @@ def render(client: int, extrinsics: np.ndarray, size: int, fov_deg: float) -> tu
     zbuf = np.asarray(zbuf, dtype=np.float64).reshape(size, size)
     depth = FAR * NEAR / (FAR - (FAR - NEAR) * zbuf)
     return rgb, depth.astype(np.float32)
-
-
-def depth_to_points(depth: np.ndarray, k: np.ndarray, extrinsics: np.ndarray) -> np.ndarray:
-    """World-frame organised cloud [H,W,3] float32: ``points[v,u]`` is the point seen at pixel (u,v)."""
-    h, w = depth.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    z = depth.astype(np.float64)
-    cam = np.stack([(u - k[0, 2]) * z / k[0, 0], (v - k[1, 2]) * z / k[1, 1], z], axis=-1)
-    world = cam @ extrinsics[:3, :3].T + extrinsics[:3, 3]
-    return world.astype(np.float32)
-
-
-def camera_frame(rgb: np.ndarray, depth: np.ndarray, k: np.ndarray, extrinsics: np.ndarray) -> CameraFrame:
-    """The shared CameraFrame from raw render outputs (also used by the demo loader)."""
-    k32, e32 = k.astype(np.float32), extrinsics.astype(np.float32)  # unproject with what is stored: reload is exact
-    return CameraFrame(rgb=rgb, points=depth_to_points(depth, k32.astype(np.float64), e32.astype(np.float64)),
-                       intrinsics=k32, extrinsics=e32)

@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from actors.sim.bullet import p
 import pybullet_data
 
 from actors.sim import shapes
+from actors.sim.bullet import p
 
 ARM_JOINTS = tuple(range(7))
 FINGER_JOINTS = (9, 10)

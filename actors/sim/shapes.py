@@ -69,9 +69,15 @@ def compound(client: int, parts: Sequence[tuple[str, Sequence[float], Vec3]], po
     types, half, radii, lengths, offsets = [], [], [], [], []
     for kind, dims, off in parts:
         if kind == "box":
-            types.append(p.GEOM_BOX); half.append(list(dims)); radii.append(0.0); lengths.append(0.0)
+            types.append(p.GEOM_BOX)
+            half.append(list(dims))
+            radii.append(0.0)
+            lengths.append(0.0)
         else:
-            types.append(p.GEOM_CYLINDER); half.append([0, 0, 0]); radii.append(dims[0]); lengths.append(dims[1])
+            types.append(p.GEOM_CYLINDER)
+            half.append([0, 0, 0])
+            radii.append(dims[0])
+            lengths.append(dims[1])
         offsets.append(list(off))
     col = p.createCollisionShapeArray(types, radii=radii, halfExtents=half, lengths=lengths,
                                       collisionFramePositions=offsets, physicsClientId=client)

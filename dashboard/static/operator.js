@@ -1,6 +1,6 @@
 // The operator's buttons, one panel per robot actor (role "robot"): a person judges each episode
 // (success / fail), says when the scene is reset, and can stop the arm at any time.
-// Each press is POST api/operator/<actor>/<action> (dashboard/operator.py); its answer is shown.
+// Each press is POST api/operator/<actor>/<action> (dashboard/operator_buttons.py); its answer is shown.
 import { esc } from "./format.js";
 
 /** [action, label, class, what it tells the robot actor] in button order; STOP stands apart. */

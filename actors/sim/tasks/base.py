@@ -9,12 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from actors.sim.bullet import p
-
 from actors.sim.scene import PandaScene
+from actors.sim.task_specs import TaskSpec, task_spec
 
-#: The reference's depth-0 scene bounds are a 1 m cube above the table; ours sits over our table.
-DEFAULT_BOUNDS = (-0.1, -0.5, -0.05, 0.9, 0.5, 0.95)
 TOP_DOWN = p.getQuaternionFromEuler((np.pi, 0.0, 0.0))
 
 
@@ -24,7 +23,7 @@ def top_down(yaw: float) -> np.ndarray:
 
 
 def horizontal(yaw: float) -> np.ndarray:
-    """Grasp-frame quaternion pointing the fingers horizontally along (cos yaw, sin yaw, 0), fingers closing sideways."""
+    """Grasp-frame quaternion pointing the fingers horizontally along (cos yaw, sin yaw, 0), closing sideways."""
     q_yaw = p.getQuaternionFromEuler((0.0, 0.0, yaw))
     q_pitch = p.getQuaternionFromEuler((0.0, np.pi / 2, 0.0))
     return np.array(p.multiplyTransforms((0, 0, 0), q_yaw, (0, 0, 0), q_pitch)[1])
@@ -68,12 +67,25 @@ class Task:
     """Base class; subclasses set the class attributes and implement the four hooks."""
 
     name: str = ""
-    episode_length: int = 10
-    scene_bounds: tuple[float, ...] = DEFAULT_BOUNDS
     #: names of spawned bodies the motion planner must avoid
     obstacles: tuple[str, ...] = ()
-    #: raised when the scene a seed draws changes, so demos cached for the old scene are not reused
-    revision: int = 1
+
+    @property
+    def spec(self) -> TaskSpec:
+        """Episode length, revision and depth-0 box: ``actors.sim.task_specs``, read without pybullet too."""
+        return task_spec(self.name)
+
+    @property
+    def episode_length(self) -> int:
+        return self.spec.episode_length
+
+    @property
+    def scene_bounds(self) -> tuple[float, ...]:
+        return self.spec.scene_bounds
+
+    @property
+    def revision(self) -> int:
+        return self.spec.revision
 
     def planner_ignores(self) -> list[tuple[str, int]]:
         """(obstacle name, link) parts the planner may touch, e.g. handles the fingers close on."""

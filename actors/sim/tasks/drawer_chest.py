@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.sim import assets
+from actors.sim.bullet import p
 from actors.sim.tasks.base import yaw_rotate
 
 DRAWERS = ("bottom", "middle", "top")
@@ -40,14 +40,17 @@ def handle_position(position, yaw: float, k: int, opened: float = 0.0) -> np.nda
 
 
 #: Approach pitch: 40 degrees below horizontal. A level approach is out of the Panda's reach between
-#: z = 0.25 and 0.4 m (its wrist joint 6 cannot bend back), tilted 40 degrees down it is reachable everywhere we sampled.
+#: z = 0.25 and 0.4 m (its wrist joint 6 cannot bend back), tilted 40 degrees down it is reachable everywhere we
+#: sampled.
 APPROACH_PITCH = 0.72 * np.pi
 
 
 def handle_grasp_quaternion(yaw: float) -> np.ndarray:
     """Fingers pointing into the chest front (+x of the chest, tilted down), closing across the vertical bar."""
     q_yaw = p.getQuaternionFromEuler((0.0, 0.0, yaw))
-    return np.array(p.multiplyTransforms((0, 0, 0), q_yaw, (0, 0, 0), p.getQuaternionFromEuler((0, APPROACH_PITCH, 0)))[1])
+    return np.array(
+        p.multiplyTransforms((0, 0, 0), q_yaw, (0, 0, 0), p.getQuaternionFromEuler((0, APPROACH_PITCH, 0)))[1]
+    )
 
 
 def interior_centre(position, yaw: float, k: int, opened: float) -> np.ndarray:

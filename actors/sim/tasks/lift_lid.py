@@ -7,9 +7,9 @@ look the same in every episode; only their place and yaw change.
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.sim import shapes
+from actors.sim.bullet import p
 from actors.sim.tasks.base import Task, top_down, waypoint
 
 POT_R, POT_H = 0.08, 0.08
@@ -18,9 +18,7 @@ LID_T, KNOB = 0.01, (0.01, 0.012, 0.0125)  #: lid thickness, knob half extents
 
 class LiftLid(Task):
     name = "lift_lid"
-    episode_length = 6
     obstacles = ("pot",)
-    revision = 2  #: 2: the saucepan is always grey (1 drew its colour from four per episode)
 
     def sample(self, rng):
         self.position = np.array([rng.uniform(0.4, 0.6), rng.uniform(-0.2, 0.2), 0.0])

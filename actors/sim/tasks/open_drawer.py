@@ -5,15 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from actors.sim.tasks import drawer_chest as chest
-from actors.sim.tasks.drawer_chest import LEGS
 from actors.sim.tasks.base import Task, waypoint, yaw_rotate
+from actors.sim.tasks.drawer_chest import LEGS
 
 OPENED = 0.15
 
 
 class OpenDrawer(Task):
     name = "open_drawer"
-    episode_length = 6
     obstacles = ("chest",)
 
     def sample(self, rng):

@@ -6,9 +6,9 @@ RLBench's variation 0, as C2F-ARM: the target is red, the distractors other colo
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.sim import shapes
+from actors.sim.bullet import p
 from actors.sim.tasks.base import Task, sample_positions, top_down, waypoint
 
 HALF = 0.0225  #: block half size
@@ -16,8 +16,6 @@ HALF = 0.0225  #: block half size
 
 class PickAndLift(Task):
     name = "pick_and_lift"
-    episode_length = 6
-    revision = 2  #: 2: the target is always red (1 drew its colour at random)
     #: the planner keeps the open hand off every block (contacts already there when a move starts, as
     #: with the block held, are exempt for that move)
     obstacles = ("block0", "block1", "block2")

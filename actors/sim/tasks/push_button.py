@@ -7,9 +7,9 @@ variations name their colour in language, which a C2F-ARM policy is never told.
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.sim import assets
+from actors.sim.bullet import p
 from actors.sim.tasks.base import Task, top_down, waypoint
 
 CAP_TOP = 0.036  #: cap top height above the table at rest
@@ -18,8 +18,6 @@ PRESSED = -0.003  #: joint travel that counts as pressed
 
 class PushButton(Task):
     name = "push_button"
-    episode_length = 5
-    revision = 2  #: 2: the base keeps its grey (1 painted it one of 20 colours per episode)
 
     def sample(self, rng):
         self.position = np.array([rng.uniform(0.35, 0.6), rng.uniform(-0.2, 0.2), 0.0])

@@ -6,9 +6,9 @@ Success needs the rubbish inside the bin AND nothing grasped, so the release is 
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.sim import shapes
+from actors.sim.bullet import p
 from actors.sim.tasks.base import Task, sample_positions, top_down, waypoint
 
 HALF = 0.02
@@ -17,7 +17,6 @@ BIN_HALF, BIN_WALL, BIN_H = 0.09, 0.005, 0.07
 
 class PutInBin(Task):
     name = "put_in_bin"
-    episode_length = 8
     obstacles = ("bin",)
 
     def sample(self, rng):

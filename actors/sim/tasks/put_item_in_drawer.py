@@ -6,12 +6,12 @@ Long horizon (8 keyframes), and once the block is in the drawer the front camera
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.sim import shapes
+from actors.sim.bullet import p
 from actors.sim.tasks import drawer_chest as chest
-from actors.sim.tasks.drawer_chest import LEGS
 from actors.sim.tasks.base import Task, top_down, waypoint, yaw_rotate
+from actors.sim.tasks.drawer_chest import LEGS
 
 HALF = 0.02
 OPENED = 0.2
@@ -19,7 +19,6 @@ OPENED = 0.2
 
 class PutItemInDrawer(Task):
     name = "put_item_in_drawer"
-    episode_length = 15
     obstacles = ("chest",)
 
     def sample(self, rng):

@@ -10,7 +10,6 @@ from actors.sim.tasks.base import Task, sample_positions, top_down, waypoint
 
 class ReachTarget(Task):
     name = "reach_target"
-    episode_length = 3
 
     def sample(self, rng):
         self.spheres = sample_positions(rng, 3, (0.3, -0.3, 0.05), (0.65, 0.3, 0.4), 0.2)

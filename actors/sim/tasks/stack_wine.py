@@ -6,9 +6,9 @@ The 90 degree re-orientation is the point: the rotation bins of the last Q-atten
 from __future__ import annotations
 
 import numpy as np
-from actors.sim.bullet import p
 
 from actors.sim import shapes
+from actors.sim.bullet import p
 from actors.sim.tasks.base import Task, horizontal, top_down, waypoint, yaw_rotate
 
 BODY_R, BODY_H, NECK_R, NECK_H = 0.03, 0.15, 0.012, 0.06
@@ -20,7 +20,6 @@ CENTRE_FROM_GRIP = BODY_H / 2 + NECK_H - GRIP_BELOW_TOP
 
 class StackWine(Task):
     name = "stack_wine"
-    episode_length = 10
     obstacles = ("rack",)
 
     def sample(self, rng):
@@ -33,8 +32,11 @@ class StackWine(Task):
 
     def spawn(self, client):
         g, h, L = RAIL_GAP, RAIL_H, RAIL_LEN
-        parts = [("box", (L / 2, 0.01, h / 2), (0, g + 0.01, h / 2)), ("box", (L / 2, 0.01, h / 2), (0, -g - 0.01, h / 2)),
-                 ("box", (L / 2, g + 0.02, 0.005), (0, 0, 0.005))]
+        parts = [
+            ("box", (L / 2, 0.01, h / 2), (0, g + 0.01, h / 2)),
+            ("box", (L / 2, 0.01, h / 2), (0, -g - 0.01, h / 2)),
+            ("box", (L / 2, g + 0.02, 0.005), (0, 0, 0.005)),
+        ]
         rack = shapes.compound(client, parts, self.rack, p.getQuaternionFromEuler((0, 0, self.rack_yaw)),
                                rgba=(0.45, 0.3, 0.15, 1))
         bottle = shapes.compound(client, [("cylinder", (BODY_R, BODY_H), (0, 0, 0)),

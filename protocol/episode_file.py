@@ -31,8 +31,8 @@ from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
-from actors.demos import foxglove as fx
-from protocol.observation import ACTION_SIZE, Observation
+from protocol import foxglove_schemas as fx
+from protocol.observation import ACTION_SIZE, Observation, camera_frame
 
 PROPRIO_SIZE = 25
 RAW = "application/octet-stream"
@@ -57,10 +57,12 @@ class Demo:
     observations: list[Observation]
     waypoint_frames: list[int] = field(default_factory=list)  #: frame index at which each scripted waypoint ended
     keyframes: list[int] | None = None  #: the operator's keyframes (robot demos); None: discover them
-    scene_bounds: tuple[float, ...] | None = None  #: the depth-0 box it was recorded for (robot demos); None: the task's
+    #: the depth-0 box it was recorded for (robot demos); None: the task's
+    scene_bounds: tuple[float, ...] | None = None
     control_hz: int = 20  #: recording rate (frames per simulated second)
     attempts: int = 1  #: seeds tried for this demo (failed demos are retried with the next seed)
-    actions: list[np.ndarray] = field(default_factory=list)  #: policy episodes: the pose chosen at each frame but the last
+    #: policy episodes: the pose chosen at each frame but the last
+    actions: list[np.ndarray] = field(default_factory=list)
     end_reason: str = ""  #: policy episodes: why it ended (success, timeout, unreachable, failed); "" for demos
     unreachable_reason: str = ""  #: the control agent's why, for an unreachable end
 
@@ -95,7 +97,9 @@ def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
     with path.open("wb") as f:
         w = Writer(f, compression=CompressionType.LZ4)
         w.start(profile="", library="c2farm")
-        sid = {n: w.register_schema(n, SchemaEncoding.JSONSchema, json.dumps(s).encode()) for n, s in fx.SCHEMAS.items()}
+        sid = {
+            n: w.register_schema(n, SchemaEncoding.JSONSchema, json.dumps(s).encode()) for n, s in fx.SCHEMAS.items()
+        }
 
         def raw(topic, meta):
             return w.register_channel(topic, RAW, 0, metadata={k: str(v) for k, v in meta.items()})
@@ -132,7 +136,10 @@ def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
                 fr = o.cameras[c]
                 put(c + "rgb", np.ascontiguousarray(fr.rgb).tobytes())
                 put(c + "depth", _depth(fr.points, fr.extrinsics).tobytes())
-                put(c + "cal", np.concatenate([fr.intrinsics.flatten(), fr.extrinsics.flatten()]).astype(np.float32).tobytes())
+                put(
+                    c + "cal",
+                    np.concatenate([fr.intrinsics.flatten(), fr.extrinsics.flatten()]).astype(np.float32).tobytes(),
+                )
                 put(c + "img", json.dumps(fx.raw_image(t, c, fr.rgb)).encode())
                 put(c + "info", json.dumps(fx.camera_calibration(t, c, fr.intrinsics, fr.rgb.shape[0])).encode())
                 if i % points_every == 0 or i == len(demo.observations) - 1:
@@ -201,7 +208,9 @@ def _read_raw(path: Path, kinds: tuple[str, ...]) -> _RawEpisode:
         raise DemoFileError(path, f"malformed or truncated MCAP ({type(e).__name__}: {e})") from None
     if sorted(proprio) != list(range(n)) or any(
             sorted(arrays.get((c, k), {})) != list(range(n)) for c in cams for k in kinds):
-        raise DemoFileError(path, f"expected {n} complete frames, found {len(proprio)}: file is truncated or inconsistent")
+        raise DemoFileError(
+            path, f"expected {n} complete frames, found {len(proprio)}: file is truncated or inconsistent"
+        )
     if actions and sorted(actions) != list(range(len(actions))):
         raise DemoFileError(path, f"next-best poses of frames {sorted(actions)} are not one per frame from 0")
     return _RawEpisode(ep, n, cams, proprio, arrays, actions)
@@ -209,8 +218,6 @@ def _read_raw(path: Path, kinds: tuple[str, ...]) -> _RawEpisode:
 
 def load_demo(path: str | Path) -> Demo:
     """Read a demo file back into Observations; any problem raises DemoFileError naming the file."""
-    from actors.sim.cameras import camera_frame  # the simulator stays out of readers that need no points
-
     path = Path(path)
     raw = _read_raw(path, ("rgb", "depth", "calibration"))
     ep, arrays = raw.meta, raw.arrays

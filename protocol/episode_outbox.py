@@ -73,7 +73,11 @@ class Outbox:
         while True:
             with self._cond:
                 left = deadline - time.monotonic()
-                if room() or left <= 0 or self._cond.wait_for(room, timeout=min(left, max(0.1, self._resend_after / 2))):
+                if (
+                    room()
+                    or left <= 0
+                    or self._cond.wait_for(room, timeout=min(left, max(0.1, self._resend_after / 2)))
+                ):
                     break
             if self._stopping:
                 break  # keep it without dropping another: the role exits within its grace period

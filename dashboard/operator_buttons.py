@@ -48,6 +48,8 @@ def press(actor: str, action: str, request: Request) -> JSONResponse:
     try:
         chosen = OperatorAction(action)
     except ValueError:
-        raise HTTPException(404, f"unknown action {action[:40]!r}; one of {[a.value for a in OperatorAction]}") from None
+        raise HTTPException(
+            404, f"unknown action {action[:40]!r}; one of {[a.value for a in OperatorAction]}"
+        ) from None
     command = publisher.send(actor, chosen)
     return JSONResponse({"actor": actor, "action": chosen.value, "seq": command.seq}, status_code=202)

@@ -1,4 +1,7 @@
-"""Checkpoints of a replay store: a directory of raw ``.npy`` files plus a JSON manifest.
+"""A checkpoint on disk: how a store :class:`Snapshot` is written, verified and read back.
+
+One directory of raw ``.npy`` files plus a JSON manifest. When and what to checkpoint (and
+the restore at start) is :mod:`replay_server.checkpointer`'s job.
 
 No pickle, no size ceiling (each array is streamed to its own file, so nothing is ever
 concatenated in memory and no container format limits the size). A checkpoint is written
@@ -31,7 +34,8 @@ from typing import Iterable, Optional
 
 import numpy as np
 
-from replay_server.storage import STEP_NAMES, Snapshot, StoredEpisode
+from replay_server.storage import Snapshot
+from replay_server.stored_episode import STEP_NAMES, StoredEpisode
 
 log = logging.getLogger(__name__)
 

@@ -1,38 +1,28 @@
-"""PandaEnv: the actor's environment. reset(seed) -> Observation; step(next-best pose) -> StepResult.
+"""PandaEnv: the simulated world an actor acts in (an ``actors.environment.Env``), a PyBullet Panda and a task.
 
-One step = one C2F-ARM decision: the control agent moves the grasp frame to the pose and then sets
-the gripper (RLBench's MoveArmThenGripper). Reward is sparse: 100 when the task succeeds (which ends
-the episode), else 0; an unreachable pose ends the episode with ``unreachable_reward``.
+One step = one C2F-ARM decision: the control agent (IK, OMPL, Ruckig) moves the grasp frame to
+the pose and then sets the gripper (RLBench's MoveArmThenGripper). Reward is sparse: 100 when the
+task succeeds (which ends the episode), else 0; an unreachable pose ends the episode with
+``unreachable_reward``. It lives beside ``actors.sim`` (the world) and ``actors.control`` (the
+arm's motion) because it joins the two.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from actors.control.agent import ControlAgent, ControlConfig
+from actors.environment import SUCCESS_REWARD, StepResult
 from actors.sim import cameras as cams
 from actors.sim.config import SimConfig
 from actors.sim.scene import HAND_LINK, PandaScene
 from actors.sim.tasks import make_task
-from protocol.observation import Observation
-
-SUCCESS_REWARD = 100.0
+from protocol.observation import Observation, camera_frame
 
 #: Called with every control step's Observation while a step executes (demo recording).
 StepRecorder = Callable[[Observation], None]
-
-
-@dataclass
-class StepResult:
-    observation: Observation
-    reward: float
-    terminal: bool
-    success: bool
-    unreachable: bool
-    info: dict = field(default_factory=dict)  #: reason (when unreachable), timings, control_steps, timeout
 
 
 class PandaEnv:
@@ -118,7 +108,7 @@ class PandaEnv:
             else:
                 k, e, fov = self._k, self._fixed[name], c.fov_deg
             rgb, depth = cams.render(s.client, e, c.image_size, fov)
-            frames[name] = cams.camera_frame(rgb, depth, k, e)
+            frames[name] = camera_frame(rgb, depth, k, e)
         q, qd = s.joint_state()
         return Observation(
             cameras=frames, gripper_pose=s.grasp_pose().astype(np.float32), gripper_open=float(s.gripper_open),

@@ -1,5 +1,6 @@
-"""Checkpoints of the running replay: restore at start (checkpoint + write-ahead log), the
-periodic / WAL-size loop, and one consistent snapshot at a time.
+"""Checkpointing the running replay: the restore at start (latest checkpoint + write-ahead
+log), the periodic / WAL-size loop, and one consistent snapshot at a time. How a checkpoint
+lies on disk is :mod:`replay_server.checkpoint_files`.
 
 The snapshot is taken by reference under the locks (the only ingest pause, measured as
 ``checkpoint_max_pause_ms``) and written by this thread while ingest and sampling carry on.
@@ -16,7 +17,7 @@ from pathlib import Path
 from typing import Optional
 
 from protocol.codec import ProtocolError, payload_digest
-from replay_server.checkpoint import CheckpointResult, list_checkpoints, load_latest, write_checkpoint
+from replay_server.checkpoint_files import CheckpointResult, list_checkpoints, load_latest, write_checkpoint
 from replay_server.state import ReplayState
 from replay_server.validation import decode_episode, decode_limits
 from replay_server.wal import list_segments, read_segment, segment_path
