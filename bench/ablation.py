@@ -153,9 +153,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="push_button", help="task to learn")
     parser.add_argument("--minutes", type=float, default=10.0, help="wall-clock budget per run")
-    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
-    parser.add_argument("--seeds", type=int, default=3, help="seeds per variant")
-    parser.add_argument("--first-seed", type=int, default=1, help="seed of the first run of each variant")
+    learning.add_seed_arguments(parser, 3, "per variant")
     parser.add_argument(
         "--variants", nargs="+", default=list(LEVERS), metavar="NAME", help="levers to compare (--list)"
     )
@@ -204,9 +202,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     out.write_text(f"{args.task}, preset {args.preset}, {args.minutes:g} min per run{early}\n\n{text}\n")
     print(text)
     print(f"wrote {out}")
-    if failed:
-        print(f"runs that failed: {', '.join(failed)}")
-    return 1 if failed else 0
+    return learning.exit_code(failed)
 
 
 if __name__ == "__main__":

@@ -198,9 +198,7 @@ def write_results(args: argparse.Namespace) -> str:
 def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="+", default=list(RUNGS), metavar="TASK", help="rungs to run (default: all)")
-    parser.add_argument("--seeds", type=int, default=3, help="seeds per task")
-    parser.add_argument("--first-seed", type=int, default=1, help="seed of the first run of each task")
-    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
+    learning.add_seed_arguments(parser, 3, "per task")
     parser.add_argument("--stop-held", type=int, default=2, metavar="N", help="evaluations in a row at the bar to stop")
     learning.add_place_arguments(parser)
     parser.add_argument("--summary", action="store_true", help="only read the per-seed CSVs and write the table")
@@ -234,9 +232,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                     failed.append(f"{task} seed {seed}")
     print(write_results(args))
     print(f"wrote {Path(args.results_dir) / 'ladder'}.{{md,csv,png}}")
-    if failed:
-        print(f"runs that failed: {', '.join(failed)}")
-    return 1 if failed else 0
+    return learning.exit_code(failed)
 
 
 if __name__ == "__main__":

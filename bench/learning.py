@@ -156,6 +156,20 @@ def check_stop_arguments(parser: argparse.ArgumentParser, args: argparse.Namespa
         parser.error("--stop-at must be a success rate in (0, 1] and --stop-held >= 1")
 
 
+def exit_code(failed: Sequence[str]) -> int:
+    """Name the runs whose launcher failed (if any) as the last line; 1 if there were any, else 0."""
+    if failed:
+        print(f"runs that failed: {', '.join(failed)}")
+    return 1 if failed else 0
+
+
+def add_seed_arguments(parser: argparse.ArgumentParser, seeds: int, each: str) -> None:
+    """--preset, --seeds and --first-seed, as every learning bench takes them (``each``: what a seed range is per)."""
+    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
+    parser.add_argument("--seeds", type=int, default=seeds, help=f"seeds {each}, one run after another")
+    parser.add_argument("--first-seed", type=int, default=1, help=f"seed of the first run {each}")
+
+
 def add_place_arguments(parser: argparse.ArgumentParser) -> None:
     """--set, --runs-dir and --results-dir, as every learning bench (learning, ablation, ladder) takes them."""
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override, every run")
@@ -167,9 +181,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="reach_target", help="task to learn")
     parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock budget per seed")
-    parser.add_argument("--preset", default="cpu-small", help="config preset in configs/")
-    parser.add_argument("--seeds", type=int, default=1, help="number of seeded runs, one after another")
-    parser.add_argument("--first-seed", type=int, default=1, help="seed of the first run")
+    add_seed_arguments(parser, 1, "in all")
     parser.add_argument("--tag", default=None, help="names an ablation variant in run ids and result files")
     parser.add_argument("--prefix", default=None, help="run id prefix (default: learn-<task>-<preset>[-<tag>])")
     parser.add_argument("--run-id", default=None, help="one run with exactly this id (no seeds, no aggregate)")

@@ -37,8 +37,10 @@ pytest.importorskip("franky_sim")
 
 @pytest.mark.timeout(900)
 def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
+    # The demo and the launch below both move at half the Panda's dynamics (the default is a tenth): a shorter test.
     robot_demos = ["--robot", "franky-sim", "--camera", "mujoco", "--task", "reach_target",
-                   "--set", f"demos.directory={tmp_path / 'demos'}", "--set", "demos.episodes=1"]
+                   "--set", f"demos.directory={tmp_path / 'demos'}", "--set", "demos.episodes=1",
+                   "--set", "robot.franka.dynamics_factor=0.5"]
     recorded = subprocess.run(
         [sys.executable, "-m", "deploy.cli", "robot-demos", *robot_demos, "--set", "robot.scripted_operator=true"],
         cwd=REPO, capture_output=True, text=True, timeout=300,
@@ -52,7 +54,7 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
          "--router-port", str(ports["router"]), "--dashboard-port", str(ports["dashboard"]),
          "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{ports['zmq']}",
          "--roles", "router,replay,dashboard,learner,demo_source,robot", *robot_demos, *TINY_TRAINING,
-         "--set", "robot.franka.dynamics_factor=0.5", "--set", "robot.verdict_wait_s=1",
+         "--set", "robot.verdict_wait_s=1",
          "--set", "actor.weights_wait_s=1", "--set", "launch.liveness_grace_s=180",
          "--set", "robot.evaluate=true", "--set", "actor.eval_episodes=1", "--set", "actor.eval_min_episodes=1",
          "--set", "actor.eval_every_versions=1"],

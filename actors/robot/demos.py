@@ -156,7 +156,9 @@ def record_demos(config, waypoints: list[Waypoint], episodes: int, out_dir, ask=
 
     Before each demo the operator sets the scene up and confirms (``ask``); a failed demo is
     not written and is tried again. With ``robot.scripted_operator`` (franky-sim) the scripted
-    operator sets each scene up and gives the waypoints instead, seeded by the demo's number.
+    operator sets each scene up and gives the waypoints instead, seeded by the demo's number,
+    and a failed demo starts franky-sim afresh: once its trajectory generator has refused a
+    motion (seen on a busy machine), every later motion of that simulation failed too.
     """
     import contextlib
     from pathlib import Path
@@ -171,24 +173,35 @@ def record_demos(config, waypoints: list[Waypoint], episodes: int, out_dir, ask=
     robot = config.robot
     written, failures = [], 0
     with contextlib.ExitStack() as stack:
-        arm, sim = open_arm(robot, stack)
-        scripted = ReachOperator(sim, OperatorChannel()) if robot.scripted_operator else None
+
+        def start():
+            arm, sim = open_arm(robot, stack)
+            return arm, (ReachOperator(sim, OperatorChannel()) if robot.scripted_operator else None)
+
+        arm, scripted = start()
         seed = len(list(out.glob("*.mcap")))
         while len(written) < episodes:
             home = return_home(arm, np.asarray(robot.home))
-            if not home.reached:
+            demo = None
+            if home.reached:
+                if scripted is None:
+                    ask(f"demo {len(written) + 1}/{episodes}: set the scene up, then press Enter ")
+                plan = waypoints if scripted is None else scripted.demonstration(np.random.default_rng(seed))
+                demo = record_robot_demo(arm, plan, config.sim.task, seed)
+                demo.scene_bounds = robot.depth0_bounds  # the robot's box, not the simulated task's
+            elif scripted is None:
                 raise RuntimeError(f"the arm cannot reach its home pose: {home.reason} {home.detail}")
-            if scripted is None:
-                ask(f"demo {len(written) + 1}/{episodes}: set the scene up, then press Enter ")
-            plan = waypoints if scripted is None else scripted.demonstration(np.random.default_rng(seed))
-            demo = record_robot_demo(arm, plan, config.sim.task, seed)
-            demo.scene_bounds = robot.depth0_bounds  # the robot's box, not the simulated task's
-            if not demo.success:
-                print(f"demo failed at waypoint {len(demo.waypoint_frames) + 1}; again", flush=True)
-                arm.recover()
+            if demo is None or not demo.success:
+                where = "the home pose" if demo is None else f"waypoint {len(demo.waypoint_frames) + 1}"
+                print(f"demo failed at {where}; again", flush=True)
                 failures += 1
-                if scripted is not None and failures > 3:  # no person to fix the scene: the same seed fails again
+                if scripted is None:
+                    arm.recover()
+                    continue
+                if failures > 3:  # no person to fix the scene: the same seed fails again
                     raise RuntimeError(f"the scripted demo of seed {seed} failed {failures} times")
+                stack.close()  # franky-sim and the connection to it, then a fresh pair
+                arm, scripted = start()
                 continue
             path = out / f"robot-{seed:04d}.mcap"
             write_demo(path, demo)
