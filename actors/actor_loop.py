@@ -167,7 +167,7 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
     qconfig = setup.network.replace(epsilon=config.epsilon)
     stats = EpisodeStats()
     first_id = first_episode_id()
-    with contextlib.closing(PandaEnv(sim_config)) as env, RoleLinks(ctx, qconfig, outbox=config) as links:
+    with contextlib.closing(PandaEnv(sim_config)) as env, RoleLinks(ctx, qconfig, sends=config) as links:
         follower, outbox = links.follower, links.outbox
         policy = ActingPolicy(qconfig, follower, epsilon=config.epsilon_at)
 

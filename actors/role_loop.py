@@ -44,16 +44,18 @@ class RoleLinks:
     The heartbeat starts last (:meth:`beat`), once whatever its counters read exists.
     """
 
-    def __init__(self, ctx: RoleContext, network: QAttentionConfig, outbox: ActorConfig | None = None) -> None:
+    def __init__(self, ctx: RoleContext, network: QAttentionConfig, sends: ActorConfig | None = None) -> None:
+        """``sends``: the outbox settings of a role that sends episodes (None: it sends none)."""
         self.ctx = ctx
         self.session = open_session(ctx.fabric)
-        self.heartbeat: Heartbeat | None = None
+        self.follower: WeightsFollower | None = None
         self.outbox: Outbox | None = None
+        self.heartbeat: Heartbeat | None = None
         try:
             self.follower = WeightsFollower(self.session, ctx.run_id, network_digest(network))
-            if outbox is not None:
-                self.outbox = Outbox(self.session, ctx.run_id, ctx.instance, outbox.outbox_size, outbox.resend_after_s,
-                                     outbox.outbox_wait_s, stop=ctx.stop)
+            if sends is not None:
+                self.outbox = Outbox(self.session, ctx.run_id, ctx.instance, sends.outbox_size, sends.resend_after_s,
+                                     sends.outbox_wait_s, stop=ctx.stop)
         except BaseException:
             self.close()
             raise
@@ -64,7 +66,7 @@ class RoleLinks:
         return self.heartbeat
 
     def close(self) -> None:
-        for part in (self.heartbeat, self.outbox, getattr(self, "follower", None), self.session):
+        for part in (self.heartbeat, self.outbox, self.follower, self.session):
             if part is not None:
                 part.close()
 

@@ -57,7 +57,7 @@ def label_out_of_range_rows(arrays: dict[str, np.ndarray], voxel_size: int, dept
         "rot_grip_indices": (4, np.array([rotation_bins] * 3 + [2])),
     }
     for label, (width, upper) in limits.items():
-        name = tr.label_name(label)
+        name = tr.extra_name(label)
         a = arrays.get(name)
         if a is None:
             continue

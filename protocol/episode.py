@@ -25,7 +25,7 @@ from protocol.codec import WIRE_DTYPES, ProtocolError, check_array_values, check
 from protocol.keys import MAX_ID_LENGTH, is_valid_id
 from protocol.limits import DEFAULT_LIMITS, MAX_INT, Limits
 from protocol.observation import ACTION_SIZE, CameraFrame, Observation
-from protocol.transition import ACT_LABELS, EXTRA_PREFIX, NEXT, label_name
+from protocol.transition import ACT_LABELS, EXTRA_PREFIX, NEXT, extra_name
 
 #: Per-observation proprioceptive arrays: name -> (trailing shape, allowed dtypes).
 PROPRIO_ARRAYS: dict[str, tuple[tuple[int, ...], tuple[str, ...]]] = {
@@ -244,7 +244,7 @@ def _validate_act_labels(obs: dict[str, np.ndarray], limits: Limits) -> None:
     """
     depths = None
     for label, (shape, dtypes) in ACT_LABELS.items():
-        name = label_name(label)
+        name = extra_name(label)
         if name not in obs:
             continue
         array = obs[name]

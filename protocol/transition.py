@@ -4,7 +4,7 @@ checks and ``qattention.TransitionBatch`` reads.
 One row of a batch is transition ``t`` of an episode (``protocol.episode``) and carries:
 
 - every observation array of step ``t`` under its episode name (``front_rgb``, ``gripper_pose``,
-  the act-time labels ``extra_voxel_indices`` ... and any other ``extra_*``), and the
+  the act-time labels ``extra_voxel_indices`` ... and any other ``extra_*``, see :func:`extra_name`), and the
   observation the transition leads to under the same name + ``NEXT`` (``front_rgb_tp1``);
 - the step fields of :data:`STEP_FIELDS` (``action``, ``reward``, ...), and with n-step returns
   the two of :data:`NSTEP_FIELDS`;
@@ -50,8 +50,11 @@ SAMPLING_FIELDS: dict[str, tuple[str, str]] = {
     INDICES: ("int64", "the replay slot of each row (handed back with its new priority)"),
     KEYS: ("int64", "the item's key at sampling time (a priority for an overwritten item is dropped)"),
     WEIGHTS: ("float32", "importance-sampling weight, normalised by the largest in the batch"),
-    PROBABILITIES: ("float64", "the probability the row was sampled with"),
+    PROBABILITIES: ("float32", "the probability the row was drawn with, within its table (demo or agent)"),
 }
+
+#: The observation extra holding the depth-0 box it was taken for (a robot's is not the simulator's).
+SCENE_BOUNDS = "scene_bounds"
 
 #: Act-time labels the actor records with each observation (as ``extra_`` + name), read by the
 #: learner: name -> (trailing shape, "D" being the cascade depth, allowed dtypes).
@@ -67,9 +70,9 @@ def next_name(name: str) -> str:
     return name + NEXT
 
 
-def label_name(label: str) -> str:
-    """The wire and batch name of act-time label ``label``: ``voxel_indices`` -> ``extra_voxel_indices``."""
-    return EXTRA_PREFIX + label
+def extra_name(name: str) -> str:
+    """The wire and batch name of observation extra ``name``: ``voxel_indices`` -> ``extra_voxel_indices``."""
+    return EXTRA_PREFIX + name
 
 
 def act_label_blanks(depths: int) -> dict[str, np.ndarray]:
@@ -97,4 +100,4 @@ def stamp_scene_bounds(observations: list[Observation], bounds) -> None:
     simulator's)."""
     box = np.asarray(bounds, dtype=np.float32).reshape(6)
     for obs in observations:
-        obs.extras.setdefault("scene_bounds", box)
+        obs.extras.setdefault(SCENE_BOUNDS, box)

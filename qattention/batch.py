@@ -24,7 +24,7 @@ from protocol import transition as tr
 from .proprioception import proprioception
 
 #: Each row's depth-0 box, an observation extra (the robot's box differs from the simulator's).
-SCENE_BOUNDS = tr.label_name("scene_bounds")
+SCENE_BOUNDS = tr.extra_name(tr.SCENE_BOUNDS)
 
 
 def _t(x, device, dtype=None) -> torch.Tensor:
@@ -134,9 +134,9 @@ class TransitionBatch:
             is_demo=_t(arrays.get(tr.IS_DEMO, np.zeros(b, bool)), device, torch.bool).reshape(-1),
             weights=_t(np.ones(b, np.float32) if weights is None else weights, device, torch.float32).reshape(-1),
             policy_version=opt(tr.POLICY_VERSION, torch.int64),
-            voxel_indices=opt(tr.label_name("voxel_indices"), torch.int64),
-            attention_coordinates=opt(tr.label_name("attention_coordinates"), torch.float32),
-            rot_grip_indices=opt(tr.label_name("rot_grip_indices"), torch.int64),
+            voxel_indices=opt(tr.extra_name("voxel_indices"), torch.int64),
+            attention_coordinates=opt(tr.extra_name("attention_coordinates"), torch.float32),
+            rot_grip_indices=opt(tr.extra_name("rot_grip_indices"), torch.int64),
             n_rewards=opt(tr.N_REWARDS, torch.float32),
             bootstrap_steps=opt(tr.BOOTSTRAP_STEPS, torch.int64),
         )

@@ -18,7 +18,7 @@ import pytest
 import zenoh
 from synthetic_episodes import actor_tag, synthetic_episode
 
-from protocol import keys
+from protocol import keys, transition
 from protocol.codec import PROTOCOL_VERSION
 from protocol.fabric import FabricConfig, open_session
 from protocol.messages import AckStatus, EpisodeAck, Status, decode, encode
@@ -181,9 +181,9 @@ def test_actors_acked_stored_once_and_sampled_bit_exact(harness, fabric):
         for _ in range(5):
             batch = client.sample(timeout_s=20)
             a = batch.arrays
-            assert a["indices"].dtype == np.int64 and a["keys"].dtype == np.int64
-            assert a["weights"].dtype == np.float32 and a["weights"].max() == pytest.approx(1.0)
-            assert a["probabilities"].shape == (32,) and a["is_demo"].dtype == bool
+            for name, (dtype, _) in transition.SAMPLING_FIELDS.items():  # the schema's sampling fields, as named
+                assert a[name].dtype == np.dtype(dtype) and a[name].shape == (32,), name
+            assert a["weights"].max() == pytest.approx(1.0) and a["is_demo"].dtype == bool
             assert_batch_exact(a, sources)
         # a stale update (wrong keys) is ignored and counted; a valid one is applied
         client.update_priorities(a["indices"], a["keys"] + 10_000, np.ones(32))

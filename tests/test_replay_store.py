@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from synthetic_episodes import actor_tag, synthetic_episode
 
+from protocol import transition
 from replay_server.checkpoint_files import list_checkpoints, load_checkpoint, load_latest, write_checkpoint
 from replay_server.config import ReplayConfig, apply_overrides
 from replay_server.ratelimiter import RateLimiter
@@ -147,6 +148,22 @@ def test_n_step_transitions_reach_n_decisions_ahead_and_stop_at_the_episode_end(
             assert batch["terminal"][i] == ep.terminals[t + m - 1]
             assert batch["timeout"][i] == (ep.timeout and t + m == ep.num_steps)
         assert set(batch["bootstrap_steps"]) == {1, 2, 3}
+
+
+@pytest.mark.parametrize("n_step", [1, 3])
+def test_a_gathered_batch_holds_exactly_the_transition_schema(n_step):
+    """Observation arrays twice (t and ``_tp1``), then the step fields ``protocol.transition`` names, each
+    with its dtype and shape; n-step fields only with n > 1."""
+    store = make_store(n_step=n_step)
+    episodes = fill(store, 2, size=8)
+    _, _, _, _, sampled, ts = store.sample(16, np.random.default_rng(0), 0.5)
+    batch = store.gather(sampled, ts)
+    observed = set(episodes[0].observations)
+    fields = {**transition.STEP_FIELDS, **(transition.NSTEP_FIELDS if n_step > 1 else {})}
+    assert set(batch) == observed | {transition.next_name(n) for n in observed} | set(fields)
+    for name, (dtype, shape, _) in fields.items():
+        assert batch[name].dtype == np.dtype(dtype), name
+        assert batch[name].shape == (16, *(n_step if d == "n" else d for d in shape)), name
 
 
 def test_one_step_batches_carry_no_n_step_fields():

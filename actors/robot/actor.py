@@ -62,7 +62,7 @@ def run(setup: RobotSetup, ctx: RoleContext) -> int:
         arm, sim = open_arm(robot, stack)
         host = arm.config.host
         channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
-        links = stack.enter_context(RoleLinks(ctx, qconfig, outbox=config))
+        links = stack.enter_context(RoleLinks(ctx, qconfig, sends=config))
         fabric_operator = FabricOperator(links.session, ctx.run_id, ctx.instance, channel)
         stack.callback(fabric_operator.close)
         if terminal is not None:
