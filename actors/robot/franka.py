@@ -118,12 +118,13 @@ class FrankaArm:
         timings: dict[str, float] = {}
         with self._moving:
             try:
-                self._robot.move(franky.CartesianMotion(franky.Affine(position, quat)), asynchronous=True)
-                finished = self._robot.join_motion(self.config.move_timeout_s)
-                if not finished:
-                    self._robot.stop()
-                    return self._failed("timeout", "", t0, timings)
-                self.wait_still(time.perf_counter(), timeout_s=self.config.settle_timeout_s)  # the arm lags its command
+                if not self._already_at(position, quat):  # a null motion can fail the trajectory generator
+                    self._robot.move(franky.CartesianMotion(franky.Affine(position, quat)), asynchronous=True)
+                    finished = self._robot.join_motion(self.config.move_timeout_s)
+                    if not finished:
+                        self._robot.stop()
+                        return self._failed("timeout", "", t0, timings)
+                    self.wait_still(time.perf_counter(), timeout_s=self.config.settle_timeout_s)  # the arm lags
                 timings["arm"] = time.perf_counter() - t0
                 error = float(np.linalg.norm(self.grasp_pose()[:3] - position))
                 if error > self.config.reach_tolerance:
@@ -140,6 +141,16 @@ class FrankaArm:
                 return self._failed(why, str(exc), t0, timings)
         self.counters["reached"] += 1
         return MoveResult("reached", seconds=time.perf_counter() - t0, position_error=error, timings=timings)
+
+    def _already_at(self, position: np.ndarray, quat: np.ndarray) -> bool:
+        """Whether the grasp frame stands within a millimetre and half a degree of the target already.
+
+        Ruckig, franky's trajectory generator, can reject a motion this short (synchronisation and
+        duration errors -101/-110/-111), so such a move is not sent: the arm is where it was asked to be.
+        """
+        now = self.grasp_pose()
+        angle = 2.0 * np.arccos(min(1.0, abs(float(np.dot(now[3:] / np.linalg.norm(now[3:]), quat)))))
+        return float(np.linalg.norm(now[:3] - position)) < 1e-3 and np.degrees(angle) < 0.5
 
     def _set_gripper(self, want_open: bool) -> bool:
         c = self.config
