@@ -50,6 +50,17 @@ def demo_transitions(env, count: int, every_n: int):
     return rows, used
 
 
+def keyframe_actions(env, seed: int) -> list[np.ndarray]:
+    """The next-best poses a demo of scene ``seed`` teaches: its keyframes' actions, in order."""
+    from actors.demos.augmentation import demo_to_transitions
+    from actors.demos.generate import record_demo
+    from actors.demos.keyframes import demo_keyframes
+
+    demo = record_demo(env, seed)
+    first = demo_to_transitions(demo.observations, demo_keyframes(demo), every_n=10**9)[0]
+    return [np.asarray(a) for a in first.actions]
+
+
 def batch_of(rows, cameras, bounds):
     import torch
 
@@ -99,28 +110,36 @@ def main() -> int:
     parser.add_argument("--yaw-augmentation", default="0,45", help="comma-separated demo_yaw_augmentation values")
     parser.add_argument("--yaw-symmetry", type=float, default=90.0, help="yaw period of the grasped object")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--rollouts", type=int, default=0,
+                        help="after training, play this many greedy episodes on the unseen scenes through the "
+                        "control agent and say where each ended against the scripted waypoints")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="config override (e.g. a ladder entry's cameras and grid)")
     args = parser.parse_args()
 
     import torch
 
     from actors.panda_env import PandaEnv
     from deploy.config import load_config
+    from deploy.config_loader import parse_override
     from deploy.roles import network_config
     from qattention.agent import C2FARM
     from qattention.batch import ObservationBatch
 
     torch.manual_seed(args.seed)
-    config = load_config(preset=args.preset, overrides=({"sim": {"task": args.task}},))
+    config = load_config(preset=args.preset, overrides=({"sim": {"task": args.task}},
+                                                                   *map(parse_override, args.set)))
     qconfig = network_config(config)
     cams, bounds = qconfig.cameras, qconfig.scene_bounds
     env = PandaEnv(config.sim)
     t0 = time.perf_counter()
     rows, used = demo_transitions(env, args.demos, config.demos.every_n)
-    tests = []
+    tests, scripted = [], []
     for seed in range(config.actor.eval_seed, config.actor.eval_seed + args.held_out):
         obs = env.reset(seed=seed)
         tests.append((obs, np.asarray(env.demo_waypoints()[0].action())))
-    env.close()
+        if len(scripted) < args.rollouts:
+            scripted.append(keyframe_actions(env, seed))
     demo_actions = [t[1] for t in tests]
     test_obs = ObservationBatch.from_observations([t[0] for t in tests], cams, scene_bounds=bounds)
     demo_yaw = quaternion_yaws(demo_actions)
@@ -148,7 +167,34 @@ def main() -> int:
                 xy, dyaw, dmod, yaws = first_pose_errors(agent, test_obs, demo_actions, args.yaw_symmetry)
                 print(f"| {aug:g} | {u} | {spent / u:.2f} | {xy:.1f} | {dyaw:.1f} | {dmod:.1f} | "
                       f"{len(set(np.round(yaws, 1)))} |", flush=True)
+        if args.rollouts:
+            greedy_rollouts(env, agent, config, cams, scripted[: args.rollouts])
+    env.close()
     return 0
+
+
+def greedy_rollouts(env, agent, config, cameras, scripted: list[list[np.ndarray]]) -> None:
+    """Play the imitation-only policy greedily on the unseen scenes; print how far each decision was from
+    the demo keyframe of the same index (what the demos teach), and how the episodes ended."""
+    from collections import Counter
+
+    from actors.actor_loop import rollout
+
+    ends, per_decision = Counter(), {}
+    for i, waypoints in enumerate(scripted):
+        r = rollout(env, agent, cameras, config.actor.eval_seed + i, explore=False,
+                    top_k=config.actor.reachable_top_k)
+        ends[f"{r.reason}{'/' + r.unreachable_reason if r.unreachable_reason else ''} at {len(r.actions)}"] += 1
+        for t, (action, waypoint) in enumerate(zip(r.actions, waypoints)):
+            row = per_decision.setdefault(t, [[], 0])
+            row[0].append(float(np.linalg.norm(action[:3] - waypoint[:3])) * 100)
+            row[1] += int(round(float(action[7])) == round(float(waypoint[7])))
+    print(f"greedy rollouts ({len(scripted)} unseen scenes): "
+          + ", ".join(f"{k}: {v}" for k, v in sorted(ends.items())))
+    print("| decision | episodes reaching it | distance to the demo keyframe (cm, median) | gripper as the demo |")
+    print("|---|---|---|---|")
+    for t, (dist, same) in sorted(per_decision.items()):
+        print(f"| {t + 1} | {len(dist)} | {statistics.median(dist):.1f} | {same}/{len(dist)} |")
 
 
 if __name__ == "__main__":
