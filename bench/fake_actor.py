@@ -35,6 +35,8 @@ def run_actor(argv: list[str]) -> int:
     p.add_argument("--deadline", type=float, default=90.0)
     p.add_argument("--template", action="store_true", help="reuse one episode's arrays (fast; for benchmarks)")
     p.add_argument("--source-info", action="store_true", help="attach Zenoh source info (publisher id) to every put")
+    p.add_argument("--certs", default="", help="keys of `c2farm certs`: TLS as actor.<actor-id>")
+    p.add_argument("--insecure", action="store_true", help="plain TCP beyond loopback")
     p.add_argument("--out", required=True)
     a = p.parse_args(argv)
 
@@ -45,7 +47,8 @@ def run_actor(argv: list[str]) -> int:
     from protocol.messages import EpisodeAck, decode, encode
     from protocol.observation import CAMERA_NAMES
 
-    session = open_session(FabricConfig(connect=[a.connect]))
+    session = open_session(FabricConfig(connect=[a.connect], certs=a.certs, insecure=a.insecure,
+                                        identity=f"actor.{a.actor_id}"))
     acks: dict[int, str] = {}
     lock = threading.Lock()
 
@@ -82,7 +85,8 @@ def run_actor(argv: list[str]) -> int:
         template.observations["extra_tag"][:, 1] = eid
         return encode(template)
 
-    t_end = time.monotonic() + a.deadline
+    started = time.monotonic()
+    t_end = started + a.deadline
     while time.monotonic() < t_end:
         with lock:
             for eid in [e for e in outbox if e in acks]:
@@ -106,7 +110,8 @@ def run_actor(argv: list[str]) -> int:
                 time.sleep(a.interval)
         time.sleep(0.01)
     with lock:
-        result = {"acks": {str(k): v for k, v in acks.items()}, "sends": sends}
+        result = {"acks": {str(k): v for k, v in acks.items()}, "sends": sends,
+                  "seconds": time.monotonic() - started, "bytes": len(make(a.start_id))}
     with open(a.out, "w") as f:
         json.dump(result, f)
     sub.undeclare()

@@ -9,7 +9,11 @@
 - ``GET /healthz``: liveness of the dashboard itself;
 - ``GET /metrics``: the role counters in Prometheus text format, typed, with HELP and base
   units (:mod:`dashboard.metrics`, names in :mod:`dashboard.metrics_catalog`);
-- ``GET /``: the page (static/app.js, vendored uPlot and three.js: no network needed).
+- ``GET /``: the page (static/app.js, vendored uPlot and three.js: no network needed);
+- ``POST /api/operator/<actor>/<action>``: a robot actor's operator buttons (:mod:`dashboard.operator_buttons`).
+
+Who may ask is :mod:`dashboard.access`'s one middleware: the operator's commands always need the
+dashboard's token, and so does every route once the dashboard binds beyond loopback.
 
 The file-backed answers only read files the roles write anyway, are memoised on the files'
 stamps and carry an ETag (a browser's revalidation gets a 304), so polling the page adds no
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import json
 import math
+import secrets
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -38,6 +43,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse, Res
 from fastapi.staticfiles import StaticFiles
 from prometheus_client import generate_latest
 
+from dashboard.access import Access, TokenGuard
 from dashboard.attention import AttentionSnapshot
 from dashboard.episodes import EvalEpisodes
 from dashboard.filecache import FileCache
@@ -46,12 +52,39 @@ from dashboard.metrics import CONTENT_TYPE, metrics_registry
 from dashboard.registry import RoleTable
 from dashboard.role_states import with_state_words
 
+#: what the page's banner says for each ``fabric_security`` (nothing on plain loopback)
+FABRIC_BANNERS = {
+    "loopback": "",
+    "tls": "fabric: TLS + access control",
+    "insecure": "fabric: INSECURE (plain TCP beyond loopback, every host that reaches the router is trusted)",
+}
 
-def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | None = None) -> FastAPI:
-    """The app for one run; ``run_dir`` (runs/<run_id>/) feeds the charts, episodes and Q-attention view."""
+
+def fabric_security(fabric: Any) -> str:
+    """``"tls"``, ``"insecure"`` or ``"loopback"`` for a ``protocol.fabric.FabricConfig``."""
+    if getattr(fabric, "certs", ""):
+        return "tls"
+    return "insecure" if getattr(fabric, "insecure", False) else "loopback"
+
+
+def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | None = None, *,
+               token: str | None = None, host: str = "127.0.0.1", fabric: str = "loopback") -> FastAPI:
+    """The app for one run; ``run_dir`` (runs/<run_id>/) feeds the charts, episodes and Q-attention view.
+
+    ``token`` is what :mod:`dashboard.access` asks for (None: a random one nobody knows, so the
+    operator's commands are refused); ``host`` the interface the server binds (beyond loopback
+    every route needs the token); ``fabric`` the run's fabric security (:func:`fabric_security`).
+    """
+    if fabric not in FABRIC_BANNERS:
+        raise ValueError(f"fabric must be one of {sorted(FABRIC_BANNERS)} (got {fabric!r})")
     app = FastAPI(title="C2F-ARM dashboard", docs_url=None, redoc_url=None, openapi_url=None)
     app.add_middleware(GZipMiddleware, minimum_size=2048)
+    access = app.state.access = Access(token or secrets.token_urlsafe(32), host)
+    app.add_middleware(TokenGuard, access=access)  # added last: it runs first, before any route or mount
+    banner = FABRIC_BANNERS[fabric]
     page = resources.files("dashboard").joinpath("index.html").read_text(encoding="utf-8")
+    page = page.replace("__FABRIC_SECURITY__", fabric).replace("__FABRIC_BANNER__", _html(banner))
+    page = page.replace("__FABRIC_HIDDEN__", "" if banner else " hidden")
     page = page.replace("__REFRESH_MS__", str(int(refresh_ms))).replace("__RUN_ID__", _html(table.run_id))
     app.mount("/static", StaticFiles(directory=str(resources.files("dashboard").joinpath("static"))), name="static")
     cache, encoded = FileCache(), FileCache(max_entries=16)
@@ -62,7 +95,9 @@ def create_app(table: RoleTable, refresh_ms: int = 1000, run_dir: str | Path | N
 
     @app.get("/api/status")
     def api_status() -> JSONResponse:
-        return JSONResponse(json_safe(with_state_words(table.snapshot(), history.config() if history else {})))
+        snap = with_state_words(table.snapshot(), history.config() if history else {})
+        snap.update(fabric_security=fabric, http_refused_token=access.refused)
+        return JSONResponse(json_safe(snap))
 
     @app.get("/api/history")
     def api_history(request: Request) -> Response:

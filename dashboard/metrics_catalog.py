@@ -233,6 +233,8 @@ EXACT: dict[str, dict[str, Entry]] = {
     },
     "dashboard": {
         "rejected_messages": Skip("the dashboard exports the same count as c2farm_rejected_status_messages_total"),
+        "http_refused_token": _c("dashboard_http_refused_token",
+                                 "HTTP requests the dashboard refused for a missing or wrong token."),
     },
     "router": {},
 }

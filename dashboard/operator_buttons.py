@@ -4,7 +4,9 @@ Actions are ``success``, ``fail``, ``reset_done``, ``stop`` and ``resume``
 (``protocol.messages.OperatorAction``). Each press becomes one validated ``OperatorCommand``
 put on ``c2farm/<run>/operator/<actor>``, which that robot actor subscribes to. The HTTP side
 holds no Zenoh: the dashboard role installs an ``OperatorPublisher`` as
-``app.state.operator`` once its session is open; until then the routes answer 503.
+``app.state.operator`` once its session is open; until then the routes answer 503. A press
+moves an arm: it always needs the dashboard's token (``Authorization: Bearer``), wherever the
+dashboard binds; :mod:`dashboard.access`'s middleware in :func:`dashboard.app.create_app` checks it.
 """
 
 from __future__ import annotations

@@ -40,9 +40,14 @@ class Instance:
     token: Optional[bool] = None  #: liveliness token present (None: not seen either way yet)
     last_heard: float = 0.0  #: receiver's clock, last status or token arrival
     last_status: Optional[Status] = None
-    starts: int = 0  #: times its token appeared
-    losses: int = 0  #: times it went from alive to gone (token withdrawn or went stale)
+    starts: int = 0  #: processes seen under this name (a new pid, or host, in its status)
+    #: times it went from alive to gone and came back as another process, or has not come back
+    losses: int = 0
+    #: times it went gone and came back as the same process: its link to the router was cut
+    #: (a router restart, a network cut), not the process
+    link_losses: int = 0
     _was_alive: bool = field(default=False, repr=False)
+    _lost: Optional[tuple] = field(default=None, repr=False)  #: (host, pid) when it went gone, until judged
 
 
 class RoleTable:
@@ -66,6 +71,15 @@ class RoleTable:
     def on_status(self, status: Status) -> None:
         with self._lock:
             item = self._get(status.role, status.instance)
+            process = (status.host, status.pid)
+            previous = item.last_status
+            if previous is None or (previous.host, previous.pid) != process:
+                item.starts += 1
+            if item._lost is not None:  # back after a loss: the same process means only its link was cut
+                if item._lost == process:
+                    item.losses -= 1
+                    item.link_losses += 1
+                item._lost = None
             item.last_status = status
             item.last_heard = self.clock()
             self._refresh(item)
@@ -75,7 +89,6 @@ class RoleTable:
             item = self._get(role, instance)
             item.token = present
             if present:
-                item.starts += 1
                 item.last_heard = self.clock()
             self._refresh(item)
 
@@ -94,7 +107,9 @@ class RoleTable:
     def _refresh(self, item: Instance) -> bool:
         alive = self._alive(item, self.clock())
         if item._was_alive and not alive:
-            item.losses += 1
+            item.losses += 1  # until it comes back as the same process (on_status)
+            status = item.last_status
+            item._lost = (status.host, status.pid) if status is not None else None
         item._was_alive = alive
         return alive
 
@@ -122,6 +137,7 @@ class RoleTable:
                         "info": dict(status.info) if status else {},
                         "starts": item.starts,
                         "losses": item.losses,
+                        "link_losses": item.link_losses,
                     }
                 )
             return {

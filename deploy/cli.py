@@ -10,12 +10,14 @@ Every subcommand resolves the same typed config (see ``deploy/config.py``)::
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import sys
 from pathlib import Path
 from typing import Optional, Sequence
 
+from deploy.certs import identity
 from deploy.config_loader import ConfigError
 from deploy.endpoints import free_port, wait_for_router
 from deploy.liveness import PARENT_ENV, start_beacon_from_env, watch_parent
@@ -36,7 +38,7 @@ def run_role(role: str, config, instance: str) -> int:
         instance=instance,
         run_dir=config.run_dir,
         seed=config.run.seed,
-        fabric=config.fabric,
+        fabric=dataclasses.replace(config.fabric, identity=identity(role, instance)),
     )
     stop_on_signals(ctx.stop)
     if os.environ.get(PARENT_ENV):
@@ -65,6 +67,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from actors.demos.cli import run
 
         return run(args)
+    if args.command == "certs":
+        return make_certs_command(args)
     logging.basicConfig(
         level=getattr(logging, str(args.log_level).upper(), logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -99,7 +103,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
     from deploy.preflight import problems
 
-    found = problems(config, list(config.launch.roles) if args.command == "launch" else [args.command])
+    if args.command == "launch":
+        found = problems(config, list(config.launch.roles))
+    else:
+        found = problems(config, [args.command], instance=args.instance)
     for problem in found:
         print(f"c2farm: cannot start: {problem}", file=sys.stderr)
     if found:
@@ -116,6 +123,27 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except ValueError as exc:  # a bad instance name
         print(f"c2farm: {exc}", file=sys.stderr)
         return 2
+
+
+def make_certs_command(args) -> int:
+    """``c2farm certs DIR``: what is missing, made; one line per problem otherwise."""
+    from deploy.certs import CertsPlan, make_certs, role_of
+    from deploy.roles import ROLES
+    from protocol import keys
+
+    bad = [n for n in args.identity
+           if role_of(n) not in ROLES or "." not in n or not keys.is_valid_id(n.split(".", 1)[1])]
+    if bad or args.actors < 0 or args.days < 1:
+        what = f"--identity {bad[0]!r}: expected ROLE.INSTANCE with a role of {', '.join(ROLES)}" if bad else \
+            "--actors must be >= 0 and --days >= 1"
+        print(f"c2farm: certs: {what}", file=sys.stderr)
+        return 2
+    plan = CertsPlan(Path(args.directory), hubs=list(args.hub), actors=args.actors,
+                     instance_prefix=args.instance_prefix, extra=list(args.identity), days=args.days)
+    written = make_certs(plan)
+    print(f"c2farm certs: {len(written)} new files in {plan.directory} ({len(plan.identities())} identities); "
+          f"start every role with --certs {plan.directory}")
+    return 0
 
 
 def _unique_run_id(cfg_mod, runs_dir: Path) -> str:

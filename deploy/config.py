@@ -32,7 +32,7 @@ from dashboard.config import DashboardConfig
 from deploy.config_loader import ConfigError, field_docs, from_dict, load_yaml, merge, to_dict
 from learner.config import LearnerConfig
 from protocol import keys
-from protocol.config_checks import above, at_least, non_empty, within
+from protocol.config_checks import above, at_least, endpoint_host, is_loopback_host, non_empty, within
 from protocol.fabric import FabricConfig
 from qattention.config import QAttentionConfig
 from replay_server.config import ReplayConfig
@@ -210,6 +210,13 @@ def check_across_sections(config: RunConfig) -> None:
             f"replay.min_size_to_sample must be <= replay.capacity_transitions "
             f"({replay.capacity_transitions}), or sampling never starts (got {replay.min_size_to_sample})"
         )
+    plain = not (config.fabric.certs or config.fabric.insecure)
+    for name, endpoint, keyed in (("replay.zmq_endpoint", replay.zmq_endpoint, replay.curve_certificate),
+                                  ("learner.replay_endpoint", learner.replay_endpoint, learner.curve_certificate)):
+        host = endpoint_host(endpoint) if endpoint else None  # "*" binds every interface
+        if plain and not keyed and host is not None and not is_loopback_host(host):
+            raise ConfigError(f"{name} {endpoint} is beyond loopback: pass --certs DIR (CURVE on the learner <-> "
+                              "replay link) or --insecure to let anyone who reaches it sample batches")
     if not config.sim.cameras:
         raise ConfigError("sim.cameras must name at least one camera: the networks see the scene through them (got [])")
 

@@ -207,9 +207,14 @@ class Launcher:
         cfg = self.config
         self.say(f"run {cfg.run.run_id}: {self.run_dir}/ (config.yaml, versions.json, logs/)")
         if tcp_endpoints(cfg.fabric.listen) and "router" in cfg.launch.roles:
-            self.say(f"zenoh router on {', '.join(cfg.fabric.listen)}")
+            self.say(f"zenoh router on {', '.join(cfg.fabric.endpoints('listen'))}")
+        if cfg.fabric.secure:
+            self.say(f"fabric: TLS with mutual authentication and access control ({cfg.fabric.certs})")
+        elif cfg.fabric.insecure:
+            self.say("fabric: INSECURE (plain TCP beyond loopback; every host that reaches the router is trusted)")
         if "dashboard" in cfg.launch.roles:
-            self.say(f"dashboard: http://{cfg.dashboard.host}:{cfg.dashboard.port}/")
+            self.say(f"dashboard: http://{cfg.dashboard.host}:{cfg.dashboard.port}/?token={self._dashboard_token()} "
+                     "(the token opens the operator's commands, and every page beyond loopback)")
         self.say("press Ctrl-C to stop")
 
     def _supervise(self) -> int:
@@ -282,6 +287,12 @@ class Launcher:
                 child.killed_silent = True
                 self._kill(child, signal.SIGKILL)
 
+    def _dashboard_token(self) -> str:
+        """The dashboard's token (made now if the dashboard has not made it yet; it keeps the same file)."""
+        from dashboard.access import ensure_token, token_path
+
+        return ensure_token(token_path(self.run_dir, self.config.dashboard.token_file))
+
     def _progress_soon(self) -> None:
         """Print progress from a thread: a hung dashboard must not stall supervision."""
         if self._progress_thread is None or not self._progress_thread.is_alive():
@@ -294,13 +305,15 @@ class Launcher:
 
         logging.getLogger("httpx").setLevel(logging.WARNING)
         url = f"http://{self.config.dashboard.host}:{self.config.dashboard.port}/api/status"
-        try:
-            summary = httpx.get(url, timeout=10.0).json().get("summary") or {}  # a busy machine answers slowly
+        headers = {"Authorization": f"Bearer {self._dashboard_token()}"}  # needed beyond loopback
+        try:  # a busy machine answers slowly
+            summary = httpx.get(url, headers=headers, timeout=10.0).json().get("summary") or {}
         except (httpx.HTTPError, ValueError, AttributeError):
             return
         if summary:
             elapsed = time.monotonic() - self.started
-            self.say("progress: " + progress_line(summary, elapsed, self.config.replay.min_size_to_sample))
+            self.say("progress: " + progress_line(summary, elapsed, self.config.replay.min_size_to_sample,
+                                                    insecure=self.config.fabric.insecure))
 
     def _shutdown(self) -> None:
         """SIGTERM every role, the router once they are gone; SIGKILL all left at the deadline.

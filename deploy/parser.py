@@ -82,6 +82,19 @@ def _common(parser: argparse.ArgumentParser) -> None:
         "Without --connect, local roles dial the same port on 127.0.0.1",
     )
     g.add_argument(
+        "--certs",
+        metavar="DIR",
+        help="keys made by `c2farm certs`: TLS with mutual authentication on every Zenoh link, access control at "
+        "the router, CURVE on the learner <-> replay link (fabric.certs)",
+    )
+    g.add_argument(
+        "--insecure",
+        action="store_true",
+        default=None,
+        help="allow plain TCP beyond loopback without --certs: every host that reaches the router is trusted "
+        "(fabric.insecure)",
+    )
+    g.add_argument(
         "--shm",
         dest="shared_memory",
         action=argparse.BooleanOptionalAction,
@@ -162,6 +175,24 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
             p.add_argument("--host", metavar="HOST", help="bind address (dashboard.host, default 127.0.0.1)")
             p.add_argument("--port", type=int, metavar="PORT", help="HTTP port (dashboard.port, default 8080)")
     p = sub.add_parser(
+        "certs",
+        help="make the keys a run needs beyond loopback (TLS certificates, access identities, CURVE keys)",
+        description="Create a certificate authority, a TLS certificate per role process (its common name, "
+        "role.instance, is what the router's access control judges) and the CURVE key pairs of the learner <-> "
+        "replay link, in DIR. Run again with more --actors or --identity to add identities; what exists is kept. "
+        "Copy ca.pem and a host's own certificate and key to that host; keep ca.key on the hub.",
+    )
+    p.add_argument("directory", metavar="DIR", help="where the keys go (created with private permissions)")
+    p.add_argument("--hub", action="append", default=[], metavar="HOST",
+                   help="an address or name actor hosts dial the router by (repeatable; 127.0.0.1 and localhost "
+                   "are always in)")
+    p.add_argument("--actors", type=int, default=2, metavar="N", help="actor identities actor-0..N-1 (default 2)")
+    p.add_argument("--instance-prefix", default="", metavar="PREFIX",
+                   help="prefix of those actors' instance names, as launch.instance_prefix on their host")
+    p.add_argument("--identity", action="append", default=[], metavar="ROLE.INSTANCE",
+                   help="one more identity, e.g. robot.robot-0 or actor.box3-actor-0 (repeatable)")
+    p.add_argument("--days", type=int, default=365, metavar="N", help="validity of new certificates (default 365)")
+    p = sub.add_parser(
         "demos",
         help="write scripted demonstrations of a task as MCAP files",
         description="Run a task's scripted waypoints through the control agent and record every "
@@ -219,6 +250,8 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
     put("run", "seed", args.seed)
     put("run", "runs_dir", args.runs_dir)
     put("fabric", "shared_memory", args.shared_memory)
+    put("fabric", "certs", getattr(args, "certs", None))
+    put("fabric", "insecure", getattr(args, "insecure", None))
     listen = args.listen
     if getattr(args, "router_port", None) is not None:
         port = args.router_port or free_port()

@@ -18,9 +18,15 @@ from deploy.endpoints import tcp_endpoints
 SIM_ROLES = frozenset({"actor", "eval", "demo_source"})
 
 
-def problems(config, roles: list[str]) -> list[str]:
-    """Everything wrong with starting ``roles`` of ``config`` on this machine, one line each."""
+def problems(config, roles: list[str], instance: str | None = None) -> list[str]:
+    """Everything wrong with starting ``roles`` of ``config`` on this machine, one line each.
+
+    ``instance`` names the one process of a role started by hand; for a launch, the
+    instances are the launcher's (``launch.instance_prefix``, ``launch.num_actors``).
+    """
     found: list[str] = []
+    if config.fabric.secure:
+        found += _certificates(config, roles, instance)
     if SIM_ROLES & set(roles):
         from actors.sim.task_specs import TASKS
 
@@ -41,6 +47,29 @@ def problems(config, roles: list[str]) -> list[str]:
     found += _writable(Path(config.run.runs_dir), "run.runs_dir")
     if "demo_source" in roles and config.demos.episodes > 0:
         found += _writable(Path(config.demos.directory), "demos.directory")
+    return found
+
+
+def _certificates(config, roles: list[str], instance: str | None) -> list[str]:
+    """Each process's certificate exists, is private, current and signed by the run's authority."""
+    from deploy.certs import check_certificate, identity
+    from deploy.config import DEFAULT_INSTANCE
+
+    launch = config.launch
+    names = []
+    for role in roles:
+        if instance is not None:
+            names.append(identity(role, instance))
+        elif role == "actor":
+            names += [identity(role, f"{launch.instance_prefix}actor-{i}") for i in range(launch.num_actors)]
+        else:
+            names.append(identity(role, launch.instance_prefix + DEFAULT_INSTANCE[role]))
+    found = []
+    for name in names:
+        try:
+            check_certificate(Path(config.fabric.certs), name)
+        except ValueError as exc:
+            found.append(f"fabric.certs: {exc}")
     return found
 
 

@@ -24,9 +24,12 @@ def _count(value: Optional[float]) -> str:
     return f"{value:,.0f}" if value is not None else "?"
 
 
-def progress_line(summary: dict, elapsed_s: float, min_size_to_sample: int) -> str:
-    """One line, e.g. ``12m05s | updates 412 (0.71/s) | env steps 3,120 (1,050 episodes) | ...``."""
-    parts = [duration(elapsed_s)]
+def progress_line(summary: dict, elapsed_s: float, min_size_to_sample: int, insecure: bool = False) -> str:
+    """One line, e.g. ``12m05s | updates 412 (0.71/s) | env steps 3,120 (1,050 episodes) | ...``.
+
+    ``insecure`` (plain TCP beyond loopback) leads the line, so nobody forgets it is on.
+    """
+    parts = (["INSECURE fabric"] if insecure else []) + [duration(elapsed_s)]
     updates, replay = summary.get("updates"), summary.get("replay_size")
     if not updates:
         if replay is not None and replay < min_size_to_sample:

@@ -47,19 +47,34 @@ def demo_dir(config: RunConfig) -> Path:
 def router(config: RunConfig, ctx: RoleContext) -> int:
     from deploy.router import run
 
-    return run(config.fabric, ctx)
+    return run(ctx.fabric, ctx)  # ctx's: it carries this process's identity
+
+
+def curve_files(config: RunConfig) -> dict[str, dict[str, str]]:
+    """The CURVE key files ``c2farm certs`` made (``fabric.certs``), for the replay and the learner
+    sections whose own CURVE fields are unset; {} when the fabric has no keys."""
+    if not config.fabric.certs:
+        return {}
+    curve = Path(config.fabric.certs) / "curve"
+    out: dict[str, dict[str, str]] = {}
+    if not config.replay.curve_certificate:
+        out["replay"] = {"curve_certificate": str(curve / "replay.key_secret"), "curve_clients": str(curve / "clients")}
+    if not config.learner.curve_certificate:
+        out["learner"] = {"curve_certificate": str(curve / "learner.key_secret"),
+                          "curve_server_key": str(curve / "replay.key")}
+    return out
 
 
 def replay(config: RunConfig, ctx: RoleContext) -> int:
     from replay_server.service import run
 
-    return run(config.replay, ctx)
+    return run(dataclasses.replace(config.replay, **curve_files(config).get("replay", {})), ctx)
 
 
 def learner(config: RunConfig, ctx: RoleContext) -> int:
     from learner.train import LearnerSetup, run
 
-    settings = config.learner
+    settings = dataclasses.replace(config.learner, **curve_files(config).get("learner", {}))
     if not settings.replay_endpoint:  # same host as the replay: dial what it binds
         endpoint = config.replay.zmq_endpoint.replace("://*:", "://127.0.0.1:").replace("://0.0.0.0:", "://127.0.0.1:")
         settings = dataclasses.replace(settings, replay_endpoint=endpoint)

@@ -61,6 +61,7 @@ class Learner:
         self.rng = np.random.default_rng(ctx.seed)
         self.agent = C2FARM(qconfig, device=self.device)
         self.step = 0  #: update() calls done
+        self.checkpointed_at = time.monotonic()  #: when the last checkpoint was written (or the learner started)
         self.version = 0  #: last weights version published
         self.samples = 0  #: transitions consumed
         self.env_steps = 0  #: transitions the replay had received, as of the last batch (learning curves)
@@ -111,6 +112,11 @@ class Learner:
         log.info("resumed from checkpoint at step %d, weights version %d", self.step, self.version)
         return True
 
+    def checkpoint_due(self, now: float) -> bool:
+        """Every ``checkpoint_every`` updates, and once ``checkpoint_every_s`` passed since the last one."""
+        every_s = self.config.checkpoint_every_s
+        return self.step % self.config.checkpoint_every == 0 or bool(every_s and now - self.checkpointed_at >= every_s)
+
     def checkpoint(self) -> bool:
         """Write a checkpoint; False (counted, previous ones kept) when the state is non-finite."""
         t0 = time.perf_counter()
@@ -121,6 +127,7 @@ class Learner:
             log.error("%s; the previous checkpoint stays the latest", exc)
             return False
         log.info("checkpoint %s in %.2f s", path.name, time.perf_counter() - t0)
+        self.checkpointed_at = time.monotonic()
         return True
 
     def publish(self, publisher: WeightsPublisher, announce: Callable[[], None] = lambda: None) -> bool:
@@ -207,7 +214,9 @@ def run(setup: LearnerSetup, ctx: RoleContext) -> int:
     heartbeat = Heartbeat(session, ctx.run_id, "learner", ctx.instance, counters=learner.counters,
                           info=lambda: {"device": str(learner.device)})
     publisher = WeightsPublisher(session, ctx.run_id, network_digest(qconfig))
-    client = ReplayClient(config.replay_endpoint, config.batch_size, prefetch=config.prefetch)
+    client = ReplayClient(config.replay_endpoint, config.batch_size, prefetch=config.prefetch,
+                          curve_certificate=config.curve_certificate, curve_server_key=config.curve_server_key,
+                          io_threads=config.zmq_io_threads)
     metrics_log = MetricsLog(ctx.run_dir / "metrics",
                              ctx.run_dir / "tensorboard" if config.tensorboard else None)
     # Actors may be waiting: publish what we have (fresh or resumed) before the first update.
@@ -221,7 +230,8 @@ def run(setup: LearnerSetup, ctx: RoleContext) -> int:
             try:
                 batch = client.sample(timeout_s=config.sample_timeout_s, stop=ctx.stop)
             except (ReplayTimeout, ReplayError) as exc:
-                log.info("no batch yet (%s); asking again", exc)
+                unreachable = client.handshake_failures or (client.curve and not client.handshakes)
+                (log.warning if unreachable else log.info)("no batch yet (%s); asking again", exc)
                 continue
             metrics, rows, priorities = learner.train_step(batch.arrays)
             if len(rows):
@@ -243,7 +253,7 @@ def run(setup: LearnerSetup, ctx: RoleContext) -> int:
                 applied = {k: v for k, v in metrics.items() if k != "skipped_nonfinite"}
                 metrics_log.write(learner.step, {**applied, **learner._rates, "weights_version": learner.version,
                                                  **learner.health, **{f"replay_{k}": v for k, v in batch.info.items()}})
-            if learner.step % config.checkpoint_every == 0:
+            if learner.checkpoint_due(time.monotonic()):
                 learner.checkpoint()
     finally:
         heartbeat.state = "stopping"

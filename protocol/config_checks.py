@@ -146,3 +146,25 @@ def _num(x) -> str:
 def _show(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
+
+
+def is_loopback_host(host: str) -> bool:
+    """Whether ``host`` (an IP literal or a name, brackets allowed) stays on this machine."""
+    import ipaddress
+
+    host = host.strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def endpoint_host(endpoint: str) -> str | None:
+    """The host of a ``PROTO/HOST:PORT`` Zenoh endpoint or a ``tcp://HOST:PORT`` ZeroMQ one (None: no host)."""
+    text = str(endpoint).split("#", 1)[0].split("?", 1)[0]
+    _, sep, address = text.partition("://") if "://" in text else text.partition("/")
+    if not sep or ":" not in address:
+        return None
+    return address.rpartition(":")[0]

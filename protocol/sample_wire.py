@@ -18,6 +18,12 @@ a batch is usually already waiting when the learner asks for the next one. Reque
 answer never came (the server restarted) are forgotten after their own timeout plus a grace
 period and re-issued. High-water marks bound the memory held in queues to about
 ``prefetch`` batches. The client needs numpy and pyzmq, never torch.
+
+With ``curve_certificate`` (its own ``NAME.key_secret``) and ``curve_server_key`` (the replay's
+public ``NAME.key``) the link is CURVE-encrypted and authenticated (``protocol.zmq_curve``). A
+handshake that fails (key not allowed, wrong server key, one end plaintext) is only visible
+in the socket's monitor events; the client watches them, and a :class:`ReplayTimeout` says
+what failed, so a learner that cannot authenticate does not wait in silence.
 """
 from __future__ import annotations
 
@@ -33,6 +39,7 @@ import zmq
 from protocol.codec import WIRE_DTYPES, ProtocolError, parse_json
 from protocol.limits import DEFAULT_LIMITS
 from protocol.messages import PriorityUpdate, SampleBatch, SampleRequest, decode, encode, validate
+from protocol.zmq_curve import client_socket, describe_failure, drain_events, handshake_events
 
 #: Prefix of a server error that means "try again" (rate limiter, queue full) rather than "refused".
 RETRY_PREFIX = "rate limiter"
@@ -103,22 +110,56 @@ class ReplayClient:
         prefetch: int = 2,
         request_timeout_s: float = 10.0,
         max_batch_bytes: int = 1 << 30,
+        curve_certificate: str = "",
+        curve_server_key: str = "",
+        io_threads: int = 1,
     ):
+        """``curve_certificate``/``curve_server_key``: key files for CURVE (both, or neither for
+        plaintext); ``io_threads``: ZeroMQ I/O threads (CURVE decrypts in them)."""
         self.endpoint, self.batch_size = endpoint, int(batch_size)
         self.prefetch = max(1, int(prefetch))
         self.request_timeout_s = float(request_timeout_s)
         self.max_batch_bytes = max_batch_bytes
-        self._ctx = zmq.Context()
+        if bool(curve_certificate) != bool(curve_server_key):
+            raise ValueError("CURVE needs both curve_certificate and curve_server_key (or neither)")
+        self.curve = bool(curve_certificate)
+        self._ctx = zmq.Context(io_threads=max(1, int(io_threads)))
         self._sock = self._ctx.socket(zmq.DEALER)
         self._sock.setsockopt(zmq.LINGER, 0)
         self._sock.setsockopt(zmq.SNDHWM, 4 * self.prefetch + 64)
         self._sock.setsockopt(zmq.RCVHWM, self.prefetch + 1)
         self._sock.setsockopt(zmq.MAXMSGSIZE, int(max_batch_bytes) + (1 << 20))  # a huge reply drops the link
+        if self.curve:
+            client_socket(self._sock, curve_certificate, curve_server_key)
+        self._monitor = self._sock.get_monitor_socket(handshake_events())
         self._sock.connect(endpoint)
         self._ids = itertools.count(1)
         self._in_flight: dict[int, float] = {}  # request id -> give-up time
         self.lost_requests = 0
         self.dropped_updates = 0
+        self.handshakes = 0  #: handshakes completed (one per (re)connection)
+        self.handshake_failures = 0  #: handshakes failed since the last one that completed
+        self.last_handshake_failure = ""
+
+    def _watch_handshakes(self) -> None:
+        for event, value in drain_events(self._monitor):
+            if event == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                self.handshakes += 1
+                self.handshake_failures, self.last_handshake_failure = 0, ""
+            else:
+                self.handshake_failures += 1
+                self.last_handshake_failure = describe_failure(event, value)[1]
+
+    def _no_answer(self) -> str:
+        """Why no answer came, as far as this end can tell (for the timeout message, one line)."""
+        if self.handshake_failures:
+            return (f"; the {'CURVE ' if self.curve else ''}handshake with the replay failed "
+                    f"{self.handshake_failures} time{'s' * (self.handshake_failures != 1)} "
+                    f"(last: {self.last_handshake_failure})")
+        if self.curve and not self.handshakes:
+            return ("; no answer and no CURVE handshake completed: the handshake may have failed (is this "
+                    "learner's public key among replay.curve_clients, and curve_server_key the replay's key?)")
+        return "; no answer from the server"
 
     def _top_up(self) -> None:
         now = time.monotonic()
@@ -147,13 +188,14 @@ class ReplayClient:
         reason = ""
         while True:
             self._top_up()
+            self._watch_handshakes()
             if stop is not None and stop.is_set():
                 raise ReplayTimeout("stopped while waiting for a batch")
             left = deadline - time.monotonic()
             if left <= 0:
                 raise ReplayTimeout(
                     f"no batch from {self.endpoint} within {timeout_s:.1f}s ({len(self._in_flight)} requests in flight)"
-                    + (f"; server said: {reason}" if reason else "; no answer from the server")
+                    + (f"; server said: {reason}" if reason else self._no_answer())
                 )
             if not self._sock.poll(int(min(left, 0.2) * 1000) + 1, zmq.POLLIN):
                 continue
@@ -164,6 +206,7 @@ class ReplayClient:
                 raise ReplayError(f"malformed batch from {self.endpoint}: {exc}") from None
             self._in_flight.pop(batch.request_id, None)
             self._top_up()
+            self._watch_handshakes()
             if batch.error:
                 if batch.error.startswith(RETRY_PREFIX):
                     reason = batch.error
@@ -184,6 +227,9 @@ class ReplayClient:
             self.dropped_updates += 1
 
     def close(self) -> None:
+        if not self._sock.closed:
+            self._sock.disable_monitor()
+        self._monitor.close(linger=0)
         self._sock.close(linger=0)
         self._ctx.term()
 

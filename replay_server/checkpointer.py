@@ -34,14 +34,16 @@ class Checkpointer:
         self.last: Optional[CheckpointResult] = None
         self.last_time = 0.0
         self.max_pause_s = 0.0
-        self.restored_from = ""
         self._lock = threading.Lock()  # one checkpoint at a time
         self._wanted = threading.Event()
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
+        self.restored_from = ""  #: the checkpoint restored at start, if any
+        self.replayed = 0  #: acknowledged episodes replayed from the write-ahead log at start
 
     # ------------------------------------------------------------------ restore
     def restore(self) -> None:
+        """Load the newest checkpoint, then replay the write-ahead log written after it."""
         state = self.state
         loaded = load_latest(self.ckpt_root)
         from_seq = 0
@@ -71,8 +73,15 @@ class Checkpointer:
                         log.warning("write-ahead-log record skipped: %s", exc)
         if replayed:
             log.info("replayed %d acknowledged episodes from the write-ahead log", replayed)
+        self.replayed = replayed
         state.stats["wal_replayed_episodes"] = replayed
         state.stats["wal_skipped_records"] = skipped
+
+    def restored(self) -> str:
+        """Where the transitions held at start came from, in words for the start-up log."""
+        parts = ([self.restored_from] if self.restored_from else []) + \
+            ([f"{self.replayed} episodes of the write-ahead log"] if self.replayed else [])
+        return " + ".join(parts) or "nothing (a fresh replay)"
 
     def _replay_record(self, raw: bytes, limits) -> int:
         store = self.state.store

@@ -11,6 +11,7 @@ from dataclasses import dataclass, fields
 from typing import Literal, Optional
 
 from protocol.config_checks import above, at_least, non_empty, one_of, within, zmq_endpoint
+from protocol.zmq_curve import check_pair
 
 #: zstd's compression levels (negative ones trade ratio for speed; 0 = zstd's default, 3).
 ZSTD_LEVELS = (-(1 << 17), 22)
@@ -96,6 +97,13 @@ class ReplayConfig:
     max_pending_per_client: int = 64
     # Largest sample-service message (request or priority update) in bytes; ZeroMQ disconnects a peer that sends more.
     max_request_bytes: int = 16 * 1024**2
+    # CURVE on the sample service: this replay's certificate (NAME.key_secret of zmq.auth.create_certificates, chmod
+    # 600); "" = plaintext (this and curve_clients both empty). Only allowed learners may sample or send priorities.
+    curve_certificate: str = ""
+    # CURVE: directory of the public NAME.key files of the learners allowed to connect (read at start); "" = plaintext.
+    curve_clients: str = ""
+    # ZeroMQ I/O threads of the sample service, >= 1 (CURVE encrypts in them; one connection uses one thread).
+    zmq_io_threads: int = 1
     # Most steps (decisions) in one episode; longer episodes are rejected and counted.
     max_episode_steps: int = 1000
     # Most cameras in one episode; more are rejected and counted.
@@ -142,7 +150,8 @@ class ReplayConfig:
                  "ingest_queue_bytes", "ingest_batch_max", "wal_checkpoint_bytes", "checkpoint_keep",
                  "max_batch_size", "max_batch_bytes", "max_pending_requests", "max_pending_per_client",
                  "max_request_bytes", "max_episode_steps", "max_episode_cameras", "max_episode_bytes",
-                 "ingest_sender_queue_size", "ingest_sender_queue_bytes", "dedup_window", "dedup_max_actors")
+                 "ingest_sender_queue_size", "ingest_sender_queue_bytes", "dedup_window", "dedup_max_actors",
+                 "zmq_io_threads")
         at_least(self, 0, "zmq_sndhwm", "zmq_rcvhwm", "stop_checkpoint_max_bytes", "seed", "samples_per_insert",
                  "samples_per_insert_error_buffer", "checkpoint_interval_s", "reject_log_interval_s")
         within(self, 0, 1, "priority_alpha", "importance_beta", "demo_fraction")
@@ -150,6 +159,7 @@ class ReplayConfig:
               "ingest_put_timeout_s", "identity_bind_ttl_s", "status_interval_s")
         within(self, 1, 64, "n_step")
         non_empty(self, "checkpoint_dir")
+        check_pair(self, "curve_certificate", "curve_clients", "directory")
         if self.samples_per_insert > 0 and self.samples_per_insert_error_buffer < max(1.0, self.samples_per_insert):
             raise ValueError(f"samples_per_insert_error_buffer must be >= max(1, samples_per_insert) = "
                              f"{max(1.0, self.samples_per_insert):g} when samples_per_insert > 0, or the rate "

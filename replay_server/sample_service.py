@@ -7,6 +7,15 @@ learner's client raises ``ReplayError``: retrying would not help). Priority upda
 checked in full (lengths, finite and >= 0, indices in range) and applied whole or not at
 all. Anything else is counted by reason as ``zmq_rejected_<reason>``; the loop itself
 survives any exception (``zmq_error_<type>``).
+
+With ``curve_certificate`` and ``curve_clients`` set the socket is a CURVE server: a ZAP
+authenticator on the service's own context admits only the public keys in ``curve_clients``
+(read at start). Failed handshakes (a plaintext client, an unknown key, a client that encrypts
+for another server key) never reach the loop; a socket monitor counts them as
+``zmq_rejected_auth`` (key refused) and ``zmq_rejected_handshake`` (anything else), logged at
+most once per ``reject_log_interval_s`` each: a client with a wrong server key retries every
+~100-200 ms. The per-client pending limit is then keyed by the client's public key (each
+message's ``User-Id``), so reconnecting with new ZeroMQ identities does not get around it.
 """
 from __future__ import annotations
 
@@ -24,6 +33,14 @@ from protocol import transition as tr
 from protocol.codec import ProtocolError, peek_fields
 from protocol.messages import PriorityUpdate, SampleBatch, SampleRequest, decode
 from protocol.sample_wire import RETRY_PREFIX, batch_frames
+from protocol.zmq_curve import (
+    ZAP_DOMAIN,
+    allowed_clients,
+    describe_failure,
+    drain_events,
+    handshake_events,
+    load_keypair,
+)
 from replay_server.rejections import protocol_reason
 from replay_server.state import ReplayState
 from replay_server.validation import decode_limits
@@ -32,7 +49,7 @@ log = logging.getLogger("replay_server")
 
 REJECT_REASONS = ("frames", "decode", "kind", "batch_too_large", "batch_bytes_too_large", "pending_per_client",
                   "pending_total", "priorities_nonfinite", "priorities_negative", "priorities_length",
-                  "priorities_range", "priorities_invalid")
+                  "priorities_range", "priorities_invalid", "auth", "handshake")
 _PER_ITEM_EXTRA_BYTES = 64  # indices, keys, weights, probabilities, action, reward, flags
 
 
@@ -48,6 +65,10 @@ class SampleService:
             state.stats.setdefault(name, 0)
         self._ctx: Optional[zmq.Context] = None
         self._sock: Optional[zmq.Socket] = None
+        self._monitor: Optional[zmq.Socket] = None
+        self._auth = None  # zmq.auth.thread.ThreadAuthenticator when CURVE is on
+        self.curve = bool(self.config.curve_certificate)
+        self._client_names: dict[str, str] = {}  # z85 public key -> key file name, for log lines
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self._pending: collections.deque = collections.deque()
@@ -57,8 +78,11 @@ class SampleService:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> str:
         cfg = self.config
-        self._ctx = zmq.Context()
+        self._ctx = zmq.Context(io_threads=cfg.zmq_io_threads)
         sock = self._sock = self._ctx.socket(zmq.ROUTER)
+        if self.curve:
+            self._start_curve(sock)
+        self._monitor = sock.get_monitor_socket(handshake_events())
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.SNDHWM, cfg.zmq_sndhwm)
         sock.setsockopt(zmq.RCVHWM, cfg.zmq_rcvhwm)
@@ -70,6 +94,23 @@ class SampleService:
         self._thread.start()
         return self.endpoint
 
+    def _start_curve(self, sock: zmq.Socket) -> None:
+        """CURVE server keys on ``sock`` and a ZAP authenticator (same context) admitting ``curve_clients``."""
+        from zmq.auth.thread import ThreadAuthenticator
+
+        cfg = self.config
+        clients = allowed_clients(cfg.curve_clients)
+        self._client_names = {key.decode(): name for key, name in clients.items()}
+        self._auth = ThreadAuthenticator(self._ctx, log=logging.getLogger("replay_server.zap"))
+        self._auth.start()
+        # the domain must be the socket's zap_domain: pyzmq's "*" only matches sockets without one
+        self._auth.configure_curve(domain=ZAP_DOMAIN, location=cfg.curve_clients)
+        sock.curve_publickey, sock.curve_secretkey = load_keypair(cfg.curve_certificate)
+        sock.curve_server = True
+        sock.zap_domain = ZAP_DOMAIN.encode()
+        log.info("sample service: CURVE on, %d allowed client key(s): %s", len(clients),
+                 ", ".join(sorted(clients.values())))
+
     def close(self, timeout: float = 60.0) -> None:
         self._stop.set()
         if self._thread is not None:
@@ -77,7 +118,12 @@ class SampleService:
             if self._thread.is_alive():
                 log.error("sampler thread did not stop within %.0f s", timeout)
         if self._sock is not None:
+            if self._monitor is not None:
+                self._sock.disable_monitor()
+                self._monitor.close(linger=0)
             self._sock.close(linger=0)
+        if self._auth is not None:
+            self._auth.stop()
         if self._ctx is not None:
             self._ctx.term()
 
@@ -89,9 +135,11 @@ class SampleService:
     def _loop(self) -> None:
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
         while not self._stop.is_set():
             try:
                 if poller.poll(5 if self._pending else 100):
+                    self._handshakes()
                     for _ in range(1024):
                         try:
                             frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=False)
@@ -106,24 +154,44 @@ class SampleService:
                 self.errors.error(exc, "sample loop")
                 time.sleep(0.01)
 
+    def _handshakes(self) -> None:
+        """Count the handshakes that failed since the last call (the monitor's events)."""
+        for event, value in drain_events(self._monitor):
+            if event != zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                reason, text = describe_failure(event, value)
+                self.rejected.count(reason, text + " (the client got nothing)")
+
+    def _client(self, ident: bytes, frame) -> tuple[object, str]:
+        """Who sent ``frame``: the key of per-client limits, and a name for log lines ("" without CURVE).
+
+        With CURVE it is the sender's public key (z85, from the authenticator), shown with its key file's name."""
+        if not self.curve:
+            return ident, ""
+        try:
+            key = frame.get("User-Id")
+        except zmq.ZMQError:  # no user id: cannot happen after a CURVE handshake; keep the routing identity
+            return ident, ""
+        return key, f"{self._client_names.get(key, 'client')} (key {key[:8]}...)"
+
     def _handle(self, frames) -> None:
+        client, who = self._client(frames[0].bytes, frames[-1])
         if len(frames) != 2:
-            self.rejected.count("frames", f"{len(frames)} frames; a request is [identity, message]")
+            self.rejected.count("frames", f"{len(frames)} frames; a request is [identity, message]", sender=who)
             return
         ident, frame = frames[0].bytes, frames[1]
         try:
             msg = decode(frame.buffer, limits=self.limits)
         except ProtocolError as exc:
-            self._refuse_undecodable(ident, frame.buffer, exc)
+            self._refuse_undecodable(ident, frame.buffer, exc, who)
             return
         if isinstance(msg, SampleRequest):
-            self._request(ident, msg)
+            self._request(ident, client, msg, who)
         elif isinstance(msg, PriorityUpdate):
-            self._priorities(msg)
+            self._priorities(msg, who)
         else:
-            self.rejected.count("kind", f"unexpected {type(msg).__name__} on the sample service")
+            self.rejected.count("kind", f"unexpected {type(msg).__name__} on the sample service", sender=who)
 
-    def _refuse_undecodable(self, ident: bytes, data, exc: ProtocolError) -> None:
+    def _refuse_undecodable(self, ident: bytes, data, exc: ProtocolError, who: str = "") -> None:
         field = str(getattr(exc, "field", ""))
         if field in ("indices", "keys", "priorities"):
             text = str(exc)
@@ -135,7 +203,7 @@ class SampleService:
             reason = "batch_too_large"
         else:
             reason = "decode"
-        self.rejected.count(reason, str(exc))
+        self.rejected.count(reason, str(exc), sender=who)
         self.state.info["last_zmq_rejection"] = str(exc)[:200]
         try:  # a request we could read the id of gets an answer, not a silent timeout
             rid = peek_fields(data).get("request_id")
@@ -153,16 +221,18 @@ class SampleService:
         return value if isinstance(value, int) and not isinstance(value, bool) else 0
 
     # ------------------------------------------------------------------ requests
-    def _request(self, ident: bytes, req: SampleRequest) -> None:
+    def _request(self, ident: bytes, client, req: SampleRequest, who: str = "") -> None:
+        """Queue ``req`` (answered to the routing identity ``ident``; ``client`` keys the per-client limit)."""
         cfg = self.config
         if req.batch_size > cfg.max_batch_size:
-            self.rejected.count("batch_too_large", f"batch_size {req.batch_size} > max_batch_size={cfg.max_batch_size}")
+            self.rejected.count("batch_too_large", f"batch_size {req.batch_size} > max_batch_size={cfg.max_batch_size}",
+                                sender=who)
             self._send(ident, SampleBatch(req.request_id, {}, f"refused: batch_size {req.batch_size} exceeds "
                                                              f"max_batch_size={cfg.max_batch_size}", {}))
             return
         nbytes = self._batch_bytes(req.batch_size)
         if nbytes > cfg.max_batch_bytes:
-            self.rejected.count("batch_bytes_too_large", f"a batch of {req.batch_size} is ~{nbytes} bytes")
+            self.rejected.count("batch_bytes_too_large", f"a batch of {req.batch_size} is ~{nbytes} bytes", sender=who)
             self._send(
                 ident,
                 SampleBatch(
@@ -175,19 +245,20 @@ class SampleService:
             )
             return
         if len(self._pending) >= cfg.max_pending_requests:
-            self.rejected.count("pending_total", f"{len(self._pending)} requests waiting")
+            self.rejected.count("pending_total", f"{len(self._pending)} requests waiting", sender=who)
             self._send(ident, SampleBatch(req.request_id, {}, f"{RETRY_PREFIX}: too many requests waiting", {}))
             return
-        if self._per_client[ident] >= cfg.max_pending_per_client:
-            self.rejected.count("pending_per_client", f"client has {self._per_client[ident]} requests waiting")
+        if self._per_client[client] >= cfg.max_pending_per_client:
+            self.rejected.count("pending_per_client", f"client has {self._per_client[client]} requests waiting",
+                                sender=who)
             self._send(
                 ident,
                 SampleBatch(req.request_id, {}, f"{RETRY_PREFIX}: too many requests waiting from this client", {}),
             )
             return
         wait = max(0.0, min(req.timeout_ms / 1000.0, cfg.sample_wait_timeout_s))
-        self._per_client[ident] += 1
-        self._pending.append((ident, req, time.monotonic() + wait, wait))
+        self._per_client[client] += 1
+        self._pending.append((ident, client, req, time.monotonic() + wait, wait))
 
     def _batch_bytes(self, batch_size: int) -> int:
         """Bytes a batch of ``batch_size`` gathers (t and t + 1 of every stored array), from the schema."""
@@ -197,26 +268,26 @@ class SampleService:
         per_item = sum(2 * math.prod(shape) * np.dtype(dtype).itemsize for dtype, shape in schema.values())
         return batch_size * (per_item + _PER_ITEM_EXTRA_BYTES)
 
-    def _done(self, ident: bytes) -> None:
-        self._per_client[ident] -= 1
-        if self._per_client[ident] <= 0:
-            del self._per_client[ident]
+    def _done(self, client) -> None:
+        self._per_client[client] -= 1
+        if self._per_client[client] <= 0:
+            del self._per_client[client]
 
     def _serve_pending(self) -> None:
         now = time.monotonic()
         keep = collections.deque()
         blocked = False
         while self._pending:
-            ident, req, deadline, wait = self._pending.popleft()
+            ident, client, req, deadline, wait = self._pending.popleft()
             try:
                 served, reason = (False, "") if blocked else self._try_serve(ident, req)
             except Exception as exc:  # answer this request with the error, serve the rest
                 self.errors.error(exc, "serving a batch")
                 self._send(ident, SampleBatch(req.request_id, {}, f"internal error: {type(exc).__name__}", {}))
-                self._done(ident)
+                self._done(client)
                 continue
             if served:
-                self._done(ident)
+                self._done(client)
                 continue
             if reason:
                 self.state.info["sample_wait"] = reason
@@ -228,9 +299,9 @@ class SampleService:
                 self._send(
                     ident, SampleBatch(req.request_id, {}, f"{RETRY_PREFIX}: no batch within {wait:.1f}s: {reason}", {})
                 )
-                self._done(ident)
+                self._done(client)
             else:
-                keep.append((ident, req, deadline, wait))
+                keep.append((ident, client, req, deadline, wait))
         self._pending.extend(keep)
 
     def _try_serve(self, ident: bytes, req: SampleRequest) -> tuple[bool, str]:
@@ -267,7 +338,7 @@ class SampleService:
             (log.warning if isinstance(exc, zmq.Again) else log.info)("batch reply dropped (%s)", exc)
 
     # ------------------------------------------------------------------ priorities
-    def _priorities(self, msg: PriorityUpdate) -> None:
+    def _priorities(self, msg: PriorityUpdate, who: str = "") -> None:
         """Apply an update only if all of it is sane; stale keys (overwritten slots) are normal."""
         idx, keys_, pri = msg.indices, msg.keys, msg.priorities
         reason, detail = "", ""
@@ -284,7 +355,7 @@ class SampleService:
             reason, detail = "priorities_range", f"indices outside 0..{self.state.store.capacity - 1}"
         if reason:
             self.state.stats["priority_updates_rejected"] += 1
-            self.rejected.count(reason, detail + " (update not applied)")
+            self.rejected.count(reason, detail + " (update not applied)", sender=who)
             return
         with self.state.store_lock:
             self.state.store.update_priorities(idx, keys_, pri)

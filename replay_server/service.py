@@ -75,7 +75,7 @@ class ReplayService:
         log.info(
             "replay %s serving: episodes on %s, samples on %s, %d transitions restored from %s",
             self.ctx.instance, keys.episodes(self.ctx.run_id, "*"), self.zmq_endpoint, self.store.size,
-            self.checkpointer.restored_from or "nothing",
+            self.checkpointer.restored(),
         )
 
     def close(self) -> None:

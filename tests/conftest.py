@@ -18,6 +18,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -39,6 +40,20 @@ TINY_TRAINING = [
     "--set", "learner.checkpoint_every=3",
     "--set", "qattention.kernels=8",
     "--set", "qattention.head_width=16",
+]
+
+
+#: A whole run small enough for a test: reach_target, 1 actor, 64 px images, 2 demos, tiny training.
+SMALL_RUN = [
+    "--task", "reach_target", "--actors", "1",
+    "--set", "sim.image_size=64",
+    "--set", "demos.episodes=2",
+    *TINY_TRAINING,
+    "--set", "actor.eval_episodes=1",
+    "--set", "actor.eval_every_versions=3",
+    "--set", "actor.record_eval=false",
+    "--set", "launch.restart_backoff_s=1",
+    "--set", "launch.progress_every_s=5",
 ]
 
 
@@ -141,6 +156,22 @@ class Descendants:
     @property
     def processes(self) -> list[psutil.Process]:
         return list(self.seen.values())
+
+
+def small_launch(run_id: str, tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, list[str], Descendants, int]:
+    """A `c2farm launch` of test_training_e2e's small run on free ports: (launcher, its output lines as they
+    come, its descendants, the dashboard's port). Stop it with stop_launcher, and kill_launcher in a finally."""
+    ports = {name: get_free_port() for name in ("router", "dashboard", "zmq")}
+    launcher = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "launch", "--run-id", run_id, "--runs-dir", str(tmp_path / "runs"),
+         "--router-port", str(ports["router"]), "--dashboard-port", str(ports["dashboard"]),
+         "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{ports['zmq']}",
+         "--set", f"demos.directory={tmp_path / 'demos'}", *SMALL_RUN, *extra],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(line.rstrip() for line in launcher.stdout), daemon=True).start()
+    return launcher, lines, Descendants(launcher.pid), ports["dashboard"]
 
 
 def stop_launcher(launcher: subprocess.Popen, children: Descendants) -> None:

@@ -54,3 +54,4 @@ def test_the_learner_publishes_the_average_and_a_resume_keeps_it(tmp_path):
     resumed = Learner(LearnerConfig(device="cpu", acting_average=0.5), TINY, ctx)
     again = resumed.acting.weights(resumed.agent.weights())
     assert all(torch.equal(again[k], acted[k]) for k in acted)
+

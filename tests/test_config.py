@@ -101,9 +101,15 @@ def test_resolution_order_defaults_preset_file_flags_set(tmp_path):
 
 
 def test_listening_on_all_interfaces_makes_local_roles_dial_loopback():
-    args = build_parser().parse_args(["router", "--listen", "tcp/0.0.0.0:7447", "--run-id", "r"])
+    args = build_parser().parse_args(["router", "--listen", "tcp/0.0.0.0:7447", "--run-id", "r", "--certs", "keys"])
     cfg = load_config(None, overrides=tuple(overrides_from_args(args)))
     assert cfg.fabric.listen == ["tcp/0.0.0.0:7447"] and cfg.fabric.connect == ["tcp/127.0.0.1:7447"]
+    assert cfg.fabric.endpoints("listen") == ["tls/0.0.0.0:7447"]  # with keys, every link is TLS
+    insecure = build_parser().parse_args(["router", "--listen", "tcp/0.0.0.0:7447", "--run-id", "r", "--insecure"])
+    assert load_config(None, overrides=tuple(overrides_from_args(insecure))).fabric.insecure
+    bare = build_parser().parse_args(["router", "--listen", "tcp/0.0.0.0:7447", "--run-id", "r"])
+    with pytest.raises(ConfigError, match="fabric.listen tcp/0.0.0.0:7447 is beyond loopback: pass --certs DIR"):
+        load_config(None, overrides=tuple(overrides_from_args(bare)))
 
 
 def test_bad_values_are_rejected_with_their_path():
@@ -188,6 +194,12 @@ def test_bad_values_are_rejected_with_their_path():
         ("run.runs_dir=''", "run.runs_dir must not be empty"),
         ("demos.episodes=-1", "demos.episodes must be >= 0"),
         ("demos.every_n=0", "demos.every_n must be >= 1 (got 0)"),
+        ("replay.curve_certificate=/keys/replay.key_secret",
+         "replay.curve_clients must be set too when curve_certificate is"),
+        ("learner.curve_server_key=/keys/replay.key",
+         "learner.curve_certificate must be set too when curve_server_key is"),
+        ("learner.zmq_io_threads=0", "learner.zmq_io_threads must be >= 1"),
+        ("replay.zmq_io_threads=0", "replay.zmq_io_threads must be >= 1"),
     ],
 )
 def test_every_field_out_of_its_range_is_one_config_error_naming_it(override, message):
@@ -199,6 +211,47 @@ def test_every_field_out_of_its_range_is_one_config_error_naming_it(override, me
         load_config(args.preset, files=tuple(args.config), overrides=tuple(overrides_from_args(args)))
     assert message in str(err.value)
     assert "\n" not in str(err.value)
+
+
+def test_curve_key_files_are_checked_when_the_config_is_resolved(tmp_path):
+    """Each CURVE key path must name a file that loads (secrets private), in one line naming the field."""
+    import os
+    import shutil
+
+    import zmq.auth
+
+    for name in ("replay", "learner"):
+        os.chmod(zmq.auth.create_certificates(tmp_path, name)[1], 0o600)
+    (tmp_path / "clients").mkdir()
+    shutil.copy(tmp_path / "learner.key", tmp_path / "clients")
+    good = {"replay": {"curve_certificate": str(tmp_path / "replay.key_secret"),
+                       "curve_clients": str(tmp_path / "clients")},
+            "learner": {"curve_certificate": str(tmp_path / "learner.key_secret"),
+                        "curve_server_key": str(tmp_path / "replay.key")}}
+    cfg = load_config(None, overrides=(good,))
+    assert cfg.learner.curve_server_key.endswith("replay.key") and cfg.replay.curve_clients.endswith("clients")
+    (tmp_path / "garbage.key_secret").write_text("not a certificate\n")
+    os.chmod(tmp_path / "garbage.key_secret", 0o600)
+    (tmp_path / "short.key").write_text('curve\n    public-key = "tooshort"\n')
+    (tmp_path / "empty").mkdir()
+    shutil.copy(tmp_path / "learner.key_secret", tmp_path / "shared.key_secret")
+    os.chmod(tmp_path / "shared.key_secret", 0o644)
+    for section, key, value, message in [
+        ("learner", "curve_certificate", tmp_path / "missing.key_secret",
+         "learner.curve_certificate must be a readable CURVE key file ({}: no such file)"),
+        ("learner", "curve_certificate", tmp_path / "learner.key", "holds no secret key"),
+        ("learner", "curve_certificate", tmp_path / "garbage.key_secret", "holds no public key"),
+        ("learner", "curve_certificate", tmp_path / "shared.key_secret", "others may access it (mode 0644): chmod 600"),
+        ("learner", "curve_server_key", tmp_path / "short.key", "malformed public key"),
+        ("learner", "curve_server_key", tmp_path / "replay.key_secret", "holds a secret key: give the peer's public"),
+        ("replay", "curve_clients", tmp_path / "empty", "holds no public NAME.key file"),
+        ("replay", "curve_clients", tmp_path / "learner.key", "not a directory"),
+    ]:
+        bad = {section: {**good[section], key: str(value)}}
+        with pytest.raises(ConfigError) as err:
+            load_config(None, overrides=(bad,))
+        assert message.format(value) in str(err.value) and str(err.value).startswith(f"{section}.{key} ")
+        assert "\n" not in str(err.value)
 
 
 def test_every_shipped_preset_resolves_within_range():

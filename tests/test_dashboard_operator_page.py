@@ -2,7 +2,8 @@
 
 The real app runs on uvicorn, its RoleTable fed real Status messages. The dashboard's operator
 publisher and a robot actor's ``FabricOperator`` each have a real Zenoh session on a real
-router, so a click travels page -> HTTP -> Zenoh -> the robot actor's operator channel.
+router, so a click travels page -> HTTP -> Zenoh -> the robot actor's operator channel. A command
+needs the dashboard's token (dashboard/access.py): the page takes it from its URL (``?token=``).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from protocol.messages import OperatorAction, Status
 pytestmark = pytest.mark.timeout(600)
 RUN_ID = "operator-page"
 NEVER = threading.Event()
+TOKEN = "page-test-token-5kq2VbL0wX8dR1"
 
 #: The page has polled the status twice: whatever it shows reflects the roles fed to it.
 POLLED = "return Boolean(window.c2farm && window.c2farm.polls.status > 1)"
@@ -66,29 +68,36 @@ class Roles(threading.Thread):
 
 
 @contextlib.contextmanager
-def page(roles: Roles):
-    """(app, browser on its page): the app on a real uvicorn, showing ``roles``."""
-    from selenium.webdriver.support.ui import WebDriverWait
-
+def page(roles: Roles, path: str = f"/?token={TOKEN}", host: str = "127.0.0.1", fabric: str = "loopback"):
+    """(app, browser on its page, base URL): the app (token :data:`TOKEN`) on a real uvicorn bound to ``host``,
+    showing ``roles``; the browser opens ``path`` at 127.0.0.1."""
     roles.start()
-    app = create_app(roles.table, refresh_ms=300)
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=get_free_port(), log_level="warning",
+    app = create_app(roles.table, refresh_ms=300, token=TOKEN, host=host, fabric=fabric)
+    server = uvicorn.Server(uvicorn.Config(app, host=host, port=get_free_port(), log_level="warning",
                                            lifespan="off"))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     driver = None
     try:
         wait_for(lambda: server.started or not thread.is_alive(), 30, "uvicorn to start")
+        base = f"http://127.0.0.1:{server.config.port}"
         driver = _driver(1200, 800)
-        driver.get(f"http://127.0.0.1:{server.config.port}/")
-        WebDriverWait(driver, 60, poll_frequency=0.2).until(lambda d: d.execute_script(POLLED))
-        yield app, driver
+        open_page(driver, base + path)
+        yield app, driver, base
     finally:
         if driver is not None:
             driver.quit()
         roles.stop.set()
         server.should_exit = True
         thread.join(timeout=10)
+
+
+def open_page(driver, url: str) -> None:
+    """Load ``url`` and wait until the page has polled the status twice."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    driver.get(url)
+    WebDriverWait(driver, 60, poll_frequency=0.2).until(lambda d: d.execute_script(POLLED))
 
 
 def click(driver, instance: str, action: str) -> str:
@@ -107,7 +116,10 @@ def test_a_robot_actor_gets_buttons_that_reach_it_over_zenoh(router):
     channel = OperatorChannel(on_stop=lambda: heard.append("stop"), on_resume=lambda: heard.append("resume"))
     listener = FabricOperator(robot, RUN_ID, "robot-0", channel)
     try:
-        with page(run) as (app, driver):
+        with page(run, path="/") as (app, driver, base):  # on loopback the page reads without the token...
+            assert click(driver, "robot-0", "stop").startswith(  # ...but sends no command without it
+                "stop: error, token required: open the dashboard's URL with its token")
+            open_page(driver, f"{base}/?token={TOKEN}")  # the URL the dashboard logs
             panel = driver.find_element("css selector", "#operator-panel")
             assert panel.is_displayed()
             buttons = panel.find_elements("css selector", ".operator[data-instance='robot-0'] button")
@@ -120,6 +132,7 @@ def test_a_robot_actor_gets_buttons_that_reach_it_over_zenoh(router):
 
             assert click(driver, "robot-0", "reset_done").startswith("reset_done: ok (command #1")
             assert channel.wait_for({OperatorAction.RESET_DONE}, NEVER, timeout_s=10) is OperatorAction.RESET_DONE
+            open_page(driver, f"{base}/")  # reloaded without it in the URL: the tab kept the token
             assert click(driver, "robot-0", "stop").startswith("stop: ok")
             wait_for(lambda: channel.paused, 10, "the robot actor to pause")
             assert click(driver, "robot-0", "resume").startswith("resume: ok")
@@ -140,7 +153,33 @@ def test_a_robot_actor_gets_buttons_that_reach_it_over_zenoh(router):
 
 
 def test_a_run_without_a_robot_shows_no_operator_panel():
-    with page(Roles(running("actor", "actor-0", episodes=3, env_steps=9))) as (_, driver):
+    with page(Roles(running("actor", "actor-0", episodes=3, env_steps=9))) as (_, driver, _):
         assert driver.find_elements("css selector", "#actor-rows tr[data-instance='actor-0']")
         assert not driver.find_element("css selector", "#operator-panel").is_displayed()
         assert not driver.find_elements("css selector", ".operator")
+        assert not driver.find_element("css selector", "#fabric").is_displayed()  # plain loopback: no banner
+
+
+def test_bound_beyond_loopback_the_page_opens_with_its_token_and_says_the_fabric_is_insecure():
+    """Bound to 0.0.0.0 (reached at 127.0.0.1) every route needs the token: the page's fetches send it, what
+    the browser loads by itself (scripts, styles) rides on the cookie the tokened page set."""
+    run = Roles(running("robot", "robot-0", {"arm": "franky-sim"}, episodes=2, env_steps=6, paused=0.0))
+    with page(run, host="0.0.0.0", fabric="insecure") as (app, driver, base):
+        banner = driver.find_element("css selector", "#fabric")
+        assert banner.is_displayed() and banner.text == ("fabric: INSECURE (plain TCP beyond loopback, every host "
+                                                         "that reaches the router is trusted)")
+        assert driver.execute_script("return getComputedStyle(document.querySelector('#fabric')).backgroundColor") \
+            == "rgb(185, 28, 28)"  # style.css loaded: a red banner
+        assert driver.find_element("css selector", "#offline").get_attribute("hidden") is not None
+        severe = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+        assert not severe, severe  # every script, style and answer loaded
+        assert click(driver, "robot-0", "stop").startswith("stop: error, the operator channel is not connected")
+
+        open_page(driver, f"{base}/")  # a reload without the token in its URL keeps working
+        assert driver.find_element("css selector", "#fabric").is_displayed()
+
+        driver.delete_all_cookies()  # a browser that never had the token
+        driver.execute_script("sessionStorage.clear()")
+        driver.get(f"{base}/")
+        assert "token required" in driver.find_element("tag name", "body").text
+        assert app.state.access.refused >= 1

@@ -51,6 +51,16 @@ def test_a_role_imports_no_other_role_and_shared_layers_import_no_role(package: 
     assert not offenders, "\n".join(offenders)
 
 
+def test_the_harness_drives_the_system_from_outside():
+    """harness/ (the multi-host bench) starts roles through the CLI like a second machine would; it imports
+    no project package, so it cannot lean on anything a real machine would not have."""
+    project = set(ROLES + SHARED + ("deploy",))
+    offenders = [f"{path.relative_to(REPO)} imports {module}"
+                 for path in package_files("harness") for module in sorted(imports(path))
+                 if module.split(".")[0] in project]
+    assert package_files("harness") and not offenders, "\n".join(offenders)
+
+
 def test_no_two_folders_import_each_other():
     """Folder cycles (a -> b -> a, at any length) hide behind lazy imports; there are none."""
     graph: dict[str, set[str]] = defaultdict(set)

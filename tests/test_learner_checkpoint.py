@@ -3,8 +3,12 @@
 import pytest
 import torch
 from safetensors.torch import save_file
+from test_acting_average import TINY, batch
 
 from learner.checkpoint import MARKER, NonFiniteState, complete_checkpoints, load_latest, save_checkpoint
+from learner.config import LearnerConfig
+from learner.train import Learner
+from protocol.role import RoleContext
 
 
 def _state(step: int) -> dict:
@@ -59,3 +63,19 @@ def test_a_poisoned_or_unreadable_checkpoint_is_skipped_for_the_previous_one(tmp
     save_file({"w": torch.tensor([1.0, float("nan")])}, str(poisoned / "tensors.safetensors"))
     (broken / "tensors.safetensors").write_bytes(b"not safetensors")
     assert load_latest(tmp_path)["step"] == 1
+
+
+def test_a_slow_learner_checkpoints_by_time_as_well_as_by_step(tmp_path):
+    """A killed learner loses at most ``checkpoint_every`` updates or ``checkpoint_every_s`` seconds of training."""
+    learner = Learner(LearnerConfig(device="cpu", checkpoint_every=100, checkpoint_every_s=60.0), TINY,
+                      RoleContext("run-1", "learner", tmp_path))
+    start = learner.checkpointed_at
+    learner.train_step(batch(0))
+    assert not learner.checkpoint_due(start + 30)  # 1 update, 30 s: not yet
+    assert learner.checkpoint_due(start + 61)  # a minute since the start: write one
+    assert learner.checkpoint()
+    assert not learner.checkpoint_due(learner.checkpointed_at + 30)  # the clock restarts at each checkpoint
+    by_steps = Learner(LearnerConfig(device="cpu", checkpoint_every=1, checkpoint_every_s=0.0), TINY,
+                       RoleContext("run-1", "learner", tmp_path / "b"))
+    by_steps.train_step(batch(1))
+    assert by_steps.checkpoint_due(by_steps.checkpointed_at + 10**6) and by_steps.step == 1

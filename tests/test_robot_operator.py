@@ -14,15 +14,17 @@ import time
 from pathlib import Path
 
 import pytest
-from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from actors.robot.operator import FabricOperator, OperatorChannel, TerminalOperator
+from dashboard.app import create_app
 from dashboard.operator_buttons import OperatorPublisher
-from dashboard.operator_buttons import router as operator_routes
+from dashboard.registry import RoleTable
 from protocol.codec import ProtocolError
 from protocol.fabric import open_session
 from protocol.messages import OperatorAction, OperatorCommand, decode, encode, encode_unchecked
+
+TOKEN = "operator-test-token-0123456789"
 
 
 def test_operator_command_round_trips():
@@ -149,12 +151,12 @@ def test_dashboard_buttons_reach_the_robot_actor_over_zenoh(router):
         listener = FabricOperator(robot, "run1", "robot-0", channel)
         other = OperatorChannel()
         FabricOperator(robot, "run1", "robot-1", other)
-        app = FastAPI()
-        app.include_router(operator_routes)
-        http = TestClient(app)
+        app = create_app(RoleTable("run1"), token=TOKEN)
+        http = TestClient(app, headers={"Authorization": f"Bearer {TOKEN}"})  # a command needs the token
         assert http.post("/api/operator/robot-0/success").status_code == 503  # no session installed yet
         app.state.operator = OperatorPublisher(dash, "run1")
         time.sleep(0.5)  # let the subscriptions reach the router
+        assert TestClient(app).post("/api/operator/robot-0/stop").status_code == 401  # without it: never sent
         for action in ("reset_done", "success"):
             answer = http.post(f"/api/operator/robot-0/{action}")
             assert answer.status_code == 202 and answer.json()["action"] == action
@@ -170,8 +172,10 @@ def test_dashboard_buttons_reach_the_robot_actor_over_zenoh(router):
 
 
 def test_the_dashboard_app_serves_the_operator_buttons():
-    from dashboard.app import create_app
-    from dashboard.registry import RoleTable
-
-    app = create_app(RoleTable("run1"))
-    assert TestClient(app).post("/api/operator/robot-0/stop").status_code == 503  # until the role installs its session
+    app = create_app(RoleTable("run1"), token=TOKEN)
+    http = TestClient(app)
+    assert http.post("/api/operator/robot-0/stop").status_code == 401  # a command always needs the token
+    answer = http.post("/api/operator/robot-0/stop", headers={"Authorization": f"Bearer {TOKEN}"})
+    assert answer.status_code == 503  # past the token: refused until the role installs its session
+    assert create_app(RoleTable("run1")).state.access.token != create_app(RoleTable("run1")).state.access.token
+    # without a token given, a random one nobody holds: no command gets through

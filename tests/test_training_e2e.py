@@ -10,55 +10,22 @@ from __future__ import annotations
 import os
 import re
 import signal
-import subprocess
-import sys
-import threading
 from pathlib import Path
 
 import httpx
-from conftest import (
-    REPO,
-    TINY_TRAINING,
-    Descendants,
-    get_free_port,
-    kill_launcher,
-    status_reader,
-    stop_launcher,
-    wait_for,
-)
+from conftest import kill_launcher, small_launch, status_reader, stop_launcher, wait_for
 
 from learner.checkpoint import complete_checkpoints
 
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
-SMALL_RUN = [
-    "--task", "reach_target", "--actors", "1",
-    "--set", "sim.image_size=64",
-    "--set", "demos.episodes=2",
-    *TINY_TRAINING,
-    "--set", "actor.eval_episodes=1",
-    "--set", "actor.eval_every_versions=3",
-    "--set", "actor.record_eval=false",
-    "--set", "launch.restart_backoff_s=1",
-    "--set", "launch.progress_every_s=5",
-]
 
 
 def test_distributed_training_runs_and_the_learner_resumes_after_a_kill(tmp_path: Path):
-    ports = {name: get_free_port() for name in ("router", "dashboard", "zmq")}
-    launcher = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", "launch", "--run-id", "e2e", "--runs-dir", str(tmp_path / "runs"),
-         "--router-port", str(ports["router"]), "--dashboard-port", str(ports["dashboard"]),
-         "--set", f"replay.zmq_endpoint=tcp://127.0.0.1:{ports['zmq']}",
-         "--set", f"demos.directory={tmp_path / 'demos'}", *SMALL_RUN],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-    )
-    lines: list[str] = []
-    threading.Thread(target=lambda: lines.extend(line.rstrip() for line in launcher.stdout), daemon=True).start()
-    children = Descendants(launcher.pid)
+    launcher, lines, children, dashboard = small_launch("e2e", tmp_path)
 
     run_dir = tmp_path / "runs" / "e2e"
     try:
-        with httpx.Client(base_url=f"http://127.0.0.1:{ports['dashboard']}", timeout=5) as http:
+        with httpx.Client(base_url=f"http://127.0.0.1:{dashboard}", timeout=5) as http:
 
             status = status_reader(http, children)
 

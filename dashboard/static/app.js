@@ -1,6 +1,7 @@
 // The dashboard page: polls the JSON endpoints and hands each answer to its panel.
 // status: every refresh period; history: every few seconds; episodes and Q-attention: every 10 s.
 // Unchanged answers (same ETag: the server answered the browser's revalidation with a 304) are not redrawn.
+import { authFetch, refusedText } from "./auth.js";
 import { LearningCharts } from "./charts.js";
 import { EpisodesPanel } from "./episodes.js";
 import { renderOperator, stopOnEscape } from "./operator.js";
@@ -39,7 +40,8 @@ function poll(name, url, ms, render) {
   let etag = null;
   const once = async () => {
     try {
-      const res = await fetch(url, { cache: "no-cache" });
+      const res = await authFetch(url, { cache: "no-cache" });
+      if (res.status === 401) throw new Error(refusedText(await res.json().catch(() => ({}))));
       if (!res.ok) throw new Error(`${url}: HTTP ${res.status}`);
       const tag = res.headers.get("ETag");
       if (!tag || tag !== etag) {

@@ -1,6 +1,7 @@
 // The operator's buttons, one panel per robot actor (role "robot"): a person judges each episode
 // (success / fail), says when the scene is reset, and can stop the arm at any time.
 // Each press is POST api/operator/<actor>/<action> (dashboard/operator_buttons.py); its answer is shown.
+import { authFetch, refusedText } from "./auth.js";
 import { esc } from "./format.js";
 
 /** [action, label, class, what it tells the robot actor] in button order; STOP stands apart. */
@@ -33,8 +34,10 @@ async function press(panel, instance, action) {
   answer.className = "answer muted";
   answer.textContent = `${action}: sending…`;
   try {
-    const res = await fetch(`api/operator/${encodeURIComponent(instance)}/${action}`, { method: "POST" });
+    // the token's header: a command always needs it (dashboard/access.py)
+    const res = await authFetch(`api/operator/${encodeURIComponent(instance)}/${action}`, { method: "POST" });
     const body = await res.json().catch(() => ({}));
+    if (res.status === 401) throw new Error(refusedText(body));
     if (!res.ok) throw new Error(body.detail || `HTTP ${res.status}`);
     answer.className = "answer ok";
     answer.textContent = `${action}: ok (command #${body.seq}, ${new Date().toLocaleTimeString()})`;
