@@ -41,7 +41,7 @@ def compute_snapshot(agent, observation, action: np.ndarray | None = None, top_k
         action = act.action[0] if action is None else action
     chosen = torch.as_tensor(np.asarray(chosen), dtype=torch.long, device=device).reshape(cfg.depths, 3)
     centres = torch.as_tensor(np.asarray(centres), dtype=torch.float32, device=device).reshape(cfg.depths, 3)
-    proprio = batch.proprioception(cfg.episode_length)
+    proprio = batch.proprioception(cfg)
     v = cfg.voxel_size
     bounds, centre = batch.bounds(cfg.scene_bounds), None
     autocast = (torch.autocast(device.type, dtype=torch.bfloat16) if agent.bf16 else contextlib.nullcontext())

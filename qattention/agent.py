@@ -111,7 +111,7 @@ class C2FARM:
         # Targets first, from the networks as they are before this update.
         q_next = []
         with torch.no_grad():
-            prop1 = batch.next_obs.proprioception(cfg.episode_length)
+            prop1 = batch.next_obs.proprioception(cfg)
             b1, centre = batch.next_obs.bounds(cfg.scene_bounds), None
             for d in range(cfg.depths):
                 grid = depth_grid(batch.next_obs, cfg, centre, b1)
@@ -124,7 +124,7 @@ class C2FARM:
                     b1 = next_bounds(a, b1, cfg, d)
                     centre = (b1[:, :3] + b1[:, 3:]) / 2
 
-        prop = batch.obs.proprioception(cfg.episode_length)
+        prop = batch.obs.proprioception(cfg)
         outs, targets = [], []
         for d in range(cfg.depths):
             y = td_target(batch.reward, batch.terminal, q_next[d], cfg, batch.n_rewards, batch.bootstrap_steps)

@@ -52,9 +52,10 @@ class ObservationBatch:
     def device(self) -> torch.device:
         return self.gripper_pose.device
 
-    def proprioception(self, episode_length: int) -> torch.Tensor:
-        """[B, 11] low-dim state of spec §1."""
-        return proprioception(self.gripper_open, self.gripper_pose, self.finger_positions, self.step, episode_length)
+    def proprioception(self, config) -> torch.Tensor:
+        """[B, 11] low-dim state of spec §1, its time value as ``config`` (a QAttentionConfig) says."""
+        return proprioception(self.gripper_open, self.gripper_pose, self.finger_positions, self.step,
+                              config.episode_length, config.time_feature)
 
     def bounds(self, default) -> torch.Tensor:
         """Depth-0 bounds [B, 6]: per-sample if the batch carries them, else ``default``."""

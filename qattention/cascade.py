@@ -76,7 +76,7 @@ def descend(
 ) -> ActResult:
     b, v = obs.size, config.voxel_size
     explore = explore and config.epsilon > 0
-    proprio = obs.proprioception(config.episode_length)
+    proprio = obs.proprioception(config)
     bounds = workspace = obs.bounds(config.scene_bounds)
     centre = None
     idxs, coords, all_bounds, qs = [], [], [], []

@@ -31,6 +31,9 @@ class QAttentionConfig:
     cameras: tuple[str, ...] = ("front",)  #: camera names fused into one grid, at least one, each once
     image_crop: int = 64  #: crop size (px, >= 0) of non-wrist images at depth>=1; 0 = off, 64 = reference
     episode_length: int = 10  #: max decisions per episode (time feature of the proprioception), >= 1
+    #: the proprioception's time value counts decisions (the reference); False holds it at +1: the keyframe is
+    #: then told by the gripper and the scene alone (a named per-task lever, BENCHMARKS.md, the ladder)
+    time_feature: bool = True
     lr: float = 5e-4  #: Adam learning rate, > 0
     weight_decay: float = 1e-6  #: Adam (coupled L2) weight decay, >= 0
     tau: float = 0.0025  #: soft target update rate, applied every update, in (0, 1]

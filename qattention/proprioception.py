@@ -17,11 +17,16 @@ def time_feature(step, episode_length: int):
     return (1.0 - step / (episode_length - 1)) * 2.0 - 1.0
 
 
-def proprioception(gripper_open, gripper_pose, finger_positions, step, episode_length: int):
+def proprioception(gripper_open, gripper_pose, finger_positions, step, episode_length: int, with_time: bool = True):
     """``[gripper_open(1), gripper_pose(7), fingers clipped to [0, 0.04](2), time(1)]`` -> float32[..., 11].
 
+    ``with_time=False`` holds the time value at +1 (the first decision's) for every step: the
+    state then names the keyframe by the gripper and the scene alone, so a policy one keyframe
+    ahead of the demos (a skipped approach pose) still sees states the demos labelled.
     Accepts numpy arrays/scalars (returns numpy) or torch tensors (returns a tensor).
     """
+    if not with_time:
+        step = step * 0
     if isinstance(gripper_pose, torch.Tensor):
         dev = gripper_pose.device
         f = lambda x: torch.as_tensor(x, dtype=torch.float32, device=dev)  # noqa: E731

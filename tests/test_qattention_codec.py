@@ -120,3 +120,7 @@ def test_proprioception_layout_and_time_feature():
     t = proprioception(torch.zeros(3), torch.zeros(3, 7), torch.zeros(3, 2), torch.tensor([0, 3, 9]), 10)
     assert t.shape == (3, 11)
     torch.testing.assert_close(t[:, -1], torch.tensor([1.0, 1 / 3, -1.0]))
+    # without the time value every step reads as the first decision: the gripper and the scene name the keyframe
+    untimed = proprioception(torch.zeros(3), torch.zeros(3, 7), torch.zeros(3, 2), torch.tensor([0, 3, 9]), 10, False)
+    torch.testing.assert_close(untimed[:, -1], torch.ones(3))
+    assert proprioception(0.0, pose, np.zeros(2), 9, 10, with_time=False)[-1] == 1.0
