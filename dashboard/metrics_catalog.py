@@ -135,6 +135,7 @@ EXACT: dict[str, dict[str, Entry]] = {
         "recoveries": _c("robot_arm_recoveries", "Error recoveries run on the arm."),
         "reconnects": _c("robot_arm_reconnects", "Connections to the arm reopened by a recovery."),
         "unwinds": _c("robot_arm_unwinds", "Joint-space moves to the home joints after a reset could not reach home."),
+        "replans": _c("robot_arm_replans", "Motions the trajectory generator refused, planned again slower."),
         "paused": _g("robot_paused", "1 while an operator stop pauses this robot actor."),
         "stop_to_still_s": _g("robot_stop_to_still_seconds",
                               "From the last stop command until the arm stood still (NaN: no stop yet)."),

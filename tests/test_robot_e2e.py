@@ -69,15 +69,23 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
 
             status = status_reader(http, children)
 
+            token_file = tmp_path / "runs" / "robot-e2e" / "dashboard.token"
+
             def operator() -> None:
-                """The person: resets the scene, and judges every other episode a success."""
+                """The person: resets the scene, and judges every other episode a success.
+
+                Commands carry the dashboard's token, as from the URL the launcher prints.
+                """
                 n = 0
                 with httpx.Client(base_url=http.base_url, timeout=5) as buttons:
                     while not done.wait(1.0):
+                        if not token_file.exists():
+                            continue
                         n += 1
+                        bearer = {"Authorization": f"Bearer {token_file.read_text().strip()}"}
                         for action in ("reset_done", "success" if n % 2 else "fail"):
                             try:
-                                buttons.post(f"/api/operator/robot-0/{action}")
+                                buttons.post(f"/api/operator/robot-0/{action}", headers=bearer)
                             except httpx.HTTPError:
                                 pass
 

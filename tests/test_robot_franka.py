@@ -8,6 +8,7 @@ measured numbers are in BENCHMARKS.md).
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 
@@ -55,6 +56,24 @@ def test_reachable_pose_is_reached_within_tolerance(arm):
     assert np.linalg.norm(obs.gripper_pose[:3] - [0.45, 0.1, 0.3]) < arm.config.reach_tolerance
     assert abs(abs(float(np.dot(obs.gripper_pose[3:], TOP_DOWN))) - 1.0) < 1e-3  # same orientation, either sign
     assert obs.gripper_open == 0.0 and obs.finger_positions.max() < 0.01  # closed on nothing
+
+
+def test_a_refused_trajectory_is_planned_again_slower(sim):
+    # 1e-12 of the dynamics makes a trajectory too long for Ruckig: franky refuses it for real (error -101),
+    # as it refused the same move of fresh simulations on some hosts; the retry at full speed then moves the arm.
+    config = FrankaConfig(host=sim.hostname, dynamics_factor=0.2, replan_dynamics=(1e-12, 1.0))
+    arm = FrankaArm(config, SafetyConfig())
+    arm.connect()
+    try:
+        result = arm.move_to(pose(0.45, -0.1, 0.3), gripper_open=True)
+        assert result.status == "reached", result
+        assert arm.counters["replans"] == 1
+        arm.config = dataclasses.replace(config, replan_dynamics=(1e-12,))  # no retry left: the refusal is the result
+        refused = arm.move_to(pose(0.45, 0.1, 0.3), gripper_open=True)
+        assert (refused.status, refused.reason) == ("failed", "control_error") and "-101" in refused.detail
+        assert arm.counters["replans"] == 1
+    finally:
+        arm.disconnect()
 
 
 def test_pose_outside_the_workspace_is_refused_without_motion(arm, sim):

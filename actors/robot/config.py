@@ -61,6 +61,10 @@ class FrankaConfig:
     #: joint positions (rad) the arm unwinds to, in joint space, when a Cartesian move home fails (Franka's "ready"
     #: posture)
     home_joints: tuple[float, ...] = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+    #: relative dynamics of a move's first try and of each retry, each in (0, 1]: when franky's trajectory generator
+    #: (Ruckig) refuses a motion on a numerical edge ("Motion planner failed", errors -101/-110/-111), the arm's error
+    #: is cleared and the move is planned again, slower; one number = no retry
+    replan_dynamics: tuple[float, ...] = (1.0, 0.7, 0.5)
 
     def __post_init__(self) -> None:
         if not 0 < self.dynamics_factor <= 1:
@@ -70,6 +74,9 @@ class FrankaConfig:
         self.home_joints = tuple(float(q) for q in self.home_joints)
         if len(self.home_joints) != 7:
             raise ValueError("home_joints needs the 7 joint positions of the arm, radians")
+        self.replan_dynamics = tuple(float(f) for f in self.replan_dynamics)
+        if not self.replan_dynamics or not all(0 < f <= 1 for f in self.replan_dynamics):
+            raise ValueError(f"replan_dynamics needs one or more factors in (0, 1] (got {self.replan_dynamics})")
         non_empty(self, "host")
         above(self, 0, "torque_threshold", "force_threshold", "gripper_speed", "gripper_force")
         at_least(self, 0, "settle_timeout_s")

@@ -11,6 +11,11 @@ franky-facts this relies on (franky-control 2.0, checked against franky-sim 1.0.
 - A lost connection raises ``NetworkException`` and leaves that ``Robot`` unusable (every
   later call fails): recovery opens a new connection.
 - Orientation quaternions are (x, y, z, w), as in the Observation.
+- franky plans each motion with Ruckig and re-plans it every control tick; Ruckig can refuse a
+  motion on a numerical edge (``RuntimeError("Motion planner failed with error code -111")``;
+  -101, -110 alike), which the suite saw only on some hosts, where it refused the same move of
+  fresh simulations four times running. ``recover_from_errors`` clears it and the same motion
+  planned at other dynamics limits is a different numerical problem: hence ``replan_dynamics``.
 """
 
 from __future__ import annotations
@@ -45,7 +50,7 @@ class FrankaArm:
         self._moving = threading.Lock()  # held while a move runs (stop() may come from another thread)
         self._gripper_open = True
         self.counters: dict[str, float] = {"moves": 0, "reached": 0, "failed": 0, "stops": 0, "recoveries": 0,
-                                           "reconnects": 0, "unwinds": 0}
+                                           "reconnects": 0, "unwinds": 0, "replans": 0}
         self.last_stop_s = float("nan")
 
     # -- connection --------------------------------------------------------------------
@@ -119,10 +124,7 @@ class FrankaArm:
         with self._moving:
             try:
                 if not self._already_at(position, quat):  # a null motion can fail the trajectory generator
-                    self._robot.move(franky.CartesianMotion(franky.Affine(position, quat)), asynchronous=True)
-                    finished = self._robot.join_motion(self.config.move_timeout_s)
-                    if not finished:
-                        self._robot.stop()
+                    if not self._plan_and_move(franky.Affine(position, quat)):
                         return self._failed("timeout", "", t0, timings)
                     self.wait_still(time.perf_counter(), timeout_s=self.config.settle_timeout_s)  # the arm lags
                 timings["arm"] = time.perf_counter() - t0
@@ -141,6 +143,33 @@ class FrankaArm:
                 return self._failed(why, str(exc), t0, timings)
         self.counters["reached"] += 1
         return MoveResult("reached", seconds=time.perf_counter() - t0, position_error=error, timings=timings)
+
+    def _plan_and_move(self, target) -> bool:
+        """Run a Cartesian motion to ``target``; False on a timeout (the arm stopped).
+
+        A motion the trajectory generator refuses is planned again at the next, slower factor of
+        ``replan_dynamics`` after clearing the arm's error; a refusal at the last factor is raised.
+        """
+        factors = self.config.replan_dynamics
+        for factor, slower in zip(factors, factors[1:]):
+            try:
+                return self._move_once(target, factor)
+            except RuntimeError as exc:  # franky's MotionPlannerException (a ControlException is not one)
+                if "Motion planner failed" not in str(exc) or self._stopped.is_set():
+                    raise
+                log.warning("trajectory refused (%s): planning it again at %.2f of the dynamics", exc, slower)
+                self.counters["replans"] += 1
+                self._robot.recover_from_errors()
+        return self._move_once(target, factors[-1])
+
+    def _move_once(self, target, factor: float) -> bool:
+        import franky
+
+        self._robot.move(franky.CartesianMotion(target, relative_dynamics_factor=factor), asynchronous=True)
+        if self._robot.join_motion(self.config.move_timeout_s):
+            return True
+        self._robot.stop()
+        return False
 
     def _already_at(self, position: np.ndarray, quat: np.ndarray) -> bool:
         """Whether the grasp frame stands within a millimetre and half a degree of the target already.
