@@ -69,6 +69,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return run(args)
     if args.command == "certs":
         return make_certs_command(args)
+    if args.command in ("export", "import"):
+        return interchange_command(args)
     logging.basicConfig(
         level=getattr(logging, str(args.log_level).upper(), logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -123,6 +125,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except ValueError as exc:  # a bad instance name
         print(f"c2farm: {exc}", file=sys.stderr)
         return 2
+
+
+def interchange_command(args) -> int:
+    """``c2farm export policy|lerobot`` and ``c2farm import lerobot``."""
+    if (args.command, args.what) == ("export", "policy"):
+        from deploy.policy_export import export_command
+
+        return export_command(args)
+    from deploy import lerobot_dataset
+
+    return (lerobot_dataset.export_command if args.command == "export" else lerobot_dataset.import_command)(args)
 
 
 def make_certs_command(args) -> int:

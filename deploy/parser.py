@@ -218,7 +218,40 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
     p.add_argument(
         "--episodes", type=int, metavar="N", help="demos to record (demos.episodes; the paper: 3 per real task)"
     )
+    _interchange(sub)
     return parser
+
+
+def _interchange(sub) -> None:
+    """``export`` and ``import``: policies and episodes in the formats other tools read."""
+    p = sub.add_parser("export", help="write a trained policy, or demos and episodes, for other tools",
+                       description="Write what other tools read: a portable policy (safetensors + config.json) "
+                       "or a LeRobot dataset (v3.0 layout) of demos or of a run's episodes.")
+    what = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    q = what.add_parser("policy", help="the online networks and what acting needs, out of a run directory",
+                        description="Write model.safetensors (the online networks only) and config.json (Q-attention "
+                        "config, cameras, scene bounds, task, weights version, learner step, code version) into DIR.")
+    q.add_argument("run_dir", metavar="RUN_DIR", help="the run directory (runs/<run-id>)")
+    q.add_argument("--out", required=True, metavar="DIR", help="where the policy goes")
+    q.add_argument("--checkpoint", metavar="FILE", help="a learner checkpoint file (default: the run's latest)")
+    q = what.add_parser("lerobot", help="demos or a run's episodes as a LeRobot dataset (v3.0 layout)",
+                        description="Write a LeRobotDataset (meta/, data/chunk-XXX/file-XXX.parquet, images per "
+                        "camera) of MCAP demos or of a run's recorded episodes.")
+    source = q.add_mutually_exclusive_group(required=True)
+    source.add_argument("--demos", metavar="DIR", help="a folder of MCAP demo files")
+    source.add_argument("--run", metavar="RUN_DIR", help="a run directory: its recorded episodes")
+    q.add_argument("--episodes", choices=("eval", "train"), default="eval",
+                   help="with --run: the evaluator's or the actors' episodes (default: %(default)s)")
+    q.add_argument("--out", required=True, metavar="DIR", help="the dataset's root (created; must be empty)")
+    q.add_argument("--repo-id", metavar="NAME", help="the dataset's name in meta/info.json (default: the folder's)")
+    p = sub.add_parser("import", help="turn another tool's dataset into demo files the demo source sends",
+                       description="Read a LeRobot dataset that carries depth or point clouds and camera matrices "
+                       "and write one MCAP demo file per episode; say in one line what is missing otherwise.")
+    what = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    q = what.add_parser("lerobot", help="a LeRobot dataset (v3.0 layout) into MCAP demo files")
+    q.add_argument("dataset", metavar="DIR", help="the dataset's root folder")
+    q.add_argument("--out", required=True, metavar="DIR", help="where the demo files go")
+    q.add_argument("--task", metavar="TASK", help="the task name the demos are for (default: the dataset's)")
 
 
 def overrides_from_args(args: argparse.Namespace) -> list[dict]:
