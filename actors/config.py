@@ -33,6 +33,9 @@ class ActorConfig:
     #: evaluator: evaluate a version only if this many versions passed since the last, >= 1 (1 = every version)
     eval_every_versions: int = 5
     record_eval: bool = True  #: evaluator: write each evaluation episode as MCAP under runs/<id>/eval/
+    #: evaluator: serve its scene live to Foxglove (WebSocket, loopback, subprotocol foxglove.sdk.v1) on this port;
+    #: -1 = off, 0 = a free port (logged)
+    foxglove_port: int = -1
     #: every episode carries its depth-0 box (extra_scene_bounds); needed in a run with a robot actor, whose box is not
     #: the task's (the replay wants one set of arrays)
     scene_bounds_on_wire: bool = False
@@ -46,6 +49,8 @@ class ActorConfig:
                  "weights_wait_s")
         at_least(self, 1, "torch_threads", "outbox_size", "eval_episodes", "eval_min_episodes", "eval_every_versions")
         above(self, 0, "resend_after_s")
+        if not -1 <= self.foxglove_port <= 65535:
+            raise ValueError(f"foxglove_port must be -1 (off), 0 (a free port) or a port (got {self.foxglove_port})")
 
     def epsilon_at(self, learner_step: int) -> float:
         """Exploration probability when acting with weights from this learner step (DQN's linear anneal).

@@ -93,7 +93,9 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
     csv_path.parent.mkdir(parents=True, exist_ok=True)
     board = _tensorboard(ctx.run_dir / "tensorboard") if config.eval_tensorboard else None
     evaluations = evaluated_version = 0
-    with contextlib.closing(PandaEnv(sim_config)) as env, RoleLinks(ctx, qconfig) as links:
+    with contextlib.closing(PandaEnv(sim_config)) as bare, RoleLinks(ctx, qconfig) as links, \
+            live_view(config.foxglove_port) as live:
+        env = live.wrap(bare) if live else bare
         follower = links.follower
         policy = ActingPolicy(qconfig.replace(epsilon=0.0), follower)
 
@@ -138,6 +140,19 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
             if board is not None:
                 board.close()
     return 0
+
+
+@contextlib.contextmanager
+def live_view(port: int):
+    """The evaluator's scene served live to Foxglove on ``port`` (:mod:`actors.live_view`); None when ``port`` is -1."""
+    if port < 0:
+        yield None
+        return
+    from actors.live_view import LiveView
+
+    with LiveView(port=port) as live:
+        log.info("live view for Foxglove at ws://127.0.0.1:%d (Open connection, Foxglove WebSocket)", live.port)
+        yield live
 
 
 def write_snapshot(directory: Path, policy: ActingPolicy, first: Rollout, task: str, seed: int, update) -> None:

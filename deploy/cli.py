@@ -96,6 +96,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             from deploy.robot_demos import run as record_robot_demos
 
             return record_robot_demos(args, config)
+        if getattr(args, "policy", None):  # eval / robot with an exported policy: joins no run
+            from deploy.policy_eval import policy_command
+
+            return policy_command(args, config)
         if config.run.run_id is None:
             raise ConfigError(
                 "run.run_id: not set; every role of a run needs the same --run-id (`c2farm launch` prints it)"

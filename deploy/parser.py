@@ -108,7 +108,18 @@ def _common(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--task", metavar="NAME",
                    help=f"task every actor steps (sim.task): {', '.join(TASKS)} (default: {DEFAULT_TASK})")
+    g.add_argument("--foxglove", nargs="?", type=int, const=8765, metavar="PORT",
+                   help="serve the evaluator's scene live to Foxglove on ws://127.0.0.1:PORT (actor.foxglove_port; "
+                   "PORT defaults to 8765, 0 picks a free one)")
     g.add_argument("--log-level", default="INFO", help="Python log level (default: %(default)s)")
+
+
+def _policy_flags(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("an exported policy instead of a run (no router, no other role)")
+    g.add_argument("--policy", metavar="DIR", help="act greedily with the policy `c2farm export policy` wrote in DIR "
+                   "and print its success rate; joins no run")
+    g.add_argument("--episodes", type=int, metavar="N",
+                   help="with --policy: greedy episodes to run, exactly (default: actor.eval_episodes)")
 
 
 def _robot_flags(parser: argparse.ArgumentParser) -> None:
@@ -171,6 +182,8 @@ def build_parser(demo_options: bool = True) -> argparse.ArgumentParser:
         )
         if role == "robot":
             _robot_flags(p)
+        if role in ("eval", "robot"):
+            _policy_flags(p)
         if role == "dashboard":
             p.add_argument("--host", metavar="HOST", help="bind address (dashboard.host, default 127.0.0.1)")
             p.add_argument("--port", type=int, metavar="PORT", help="HTTP port (dashboard.port, default 8080)")
@@ -263,6 +276,7 @@ def overrides_from_args(args: argparse.Namespace) -> list[dict]:
             out.setdefault(section, {})[key] = value
 
     put("sim", "task", args.task)
+    put("actor", "foxglove_port", getattr(args, "foxglove", None))
     put("robot", "arm", getattr(args, "robot", None))
     if getattr(args, "robot", None):  # the robot's depth-0 box is not the task's: every episode says its own
         put("actor", "scene_bounds_on_wire", True)

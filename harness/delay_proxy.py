@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -95,8 +96,12 @@ async def _main(listen: tuple[str, int], target: tuple[str, int], delay_s: float
     server = await serve(listen, target, delay_s)
     host, port = server.sockets[0].getsockname()[:2]
     print(f"listening on {host}:{port} -> {target[0]}:{target[1]} (+{delay_s * 1e3:.0f} ms each way)", flush=True)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGTERM, signal.SIGINT):  # a stop request ends it cleanly, exit code 0
+        loop.add_signal_handler(signum, stop.set)
     async with server:
-        await server.serve_forever()
+        await stop.wait()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -107,10 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.delay_ms < 0:
         parser.error("--delay-ms must be >= 0")
-    try:
-        asyncio.run(_main(args.listen, args.target, args.delay_ms / 1e3))
-    except KeyboardInterrupt:
-        pass
+    asyncio.run(_main(args.listen, args.target, args.delay_ms / 1e3))
     return 0
 
 

@@ -1,42 +1,60 @@
-"""Demo files: one MCAP per episode. Raw channels (lz4 chunks) reload observations; Foxglove JSON
-channels (images, calibration, point clouds, transforms, joint states) make the file viewable.
+"""Episode files: one MCAP per demo or evaluation episode, written with foxglove-sdk so it opens in
+Foxglove with every channel decoded, and read back here bit-exactly into Observations.
 
-Raw layout, one message per control step per channel, ``sequence`` = frame index:
-``/raw/proprio`` float32[25] = gripper_pose 7, gripper_open, fingers 2, joints 7, velocities 7, step;
-``/raw/<cam>/rgb`` uint8 [H,W,3]; ``/raw/<cam>/depth`` float32 [H,W] z-depth;
-``/raw/<cam>/calibration`` float32 K(9) + extrinsics(16). Points are re-derived from depth with the
-stored matrices, as the environment derived them. Episode facts are in the ``episode`` metadata.
+Layout (``c2farm-demo/2``, logged by ``protocol.episode_channels``, as the live view logs it), one
+message per frame per channel, in frame order; log times are the wall-clock time of recording
+(frame i at ``recorded_ns + i / control_hz``):
 
-Policy episodes (evaluation rollouts) also carry ``/policy/next_best_pose`` float32[8] (xyz, quat
-xyzw, gripper open), ``sequence`` = the frame it was chosen from (one fewer than the frames), and
-say why they ended in the metadata (``end``: success / timeout / unreachable / failed, plus
-``unreachable_reason``). Both are additions: files without them still load, and readers that
-predate them skip the channel (it is outside ``/raw/``).
+- ``/<cam>/image`` foxglove.RawImage ``rgb8`` and ``/<cam>/depth`` foxglove.RawImage ``32FC1``
+  (optical-axis depth, metres): the exact uint8 / float32 arrays, viewable as they are;
+- ``/raw/proprio`` float32[25] = gripper_pose 7, gripper_open, fingers 2, joints 7, velocities 7,
+  step; ``/raw/<cam>/calibration`` float32 K(9) + extrinsics(16); policy episodes also
+  ``/policy/next_best_pose`` float32[8] (xyz, quat xyzw, gripper open), one per frame but the last:
+  the ``c2farm.Float32Array`` protobuf schema (``protocol.foxglove_schemas``), dtype and shape in
+  the channel metadata;
+- for viewing only: ``/<cam>/calibration`` foxglove.CameraCalibration, ``/<cam>/points``
+  foxglove.PointCloud (every 5th frame), ``/tf`` foxglove.FrameTransforms (world to ``grasp`` and
+  to each camera), ``/joint_states`` foxglove.JointStates.
 
-Robot demos also carry the operator's ``keyframes`` (JSON frame indices) in the metadata; files
-without them (every simulated demo, robot demos recorded before) have their keyframes discovered.
+Episode facts are in the ``episode`` metadata; policy episodes say why they ended (``end``:
+success / timeout / unreachable / failed, plus ``unreachable_reason``); robot demos carry the
+operator's ``keyframes`` and their ``scene_bounds``. Points are re-derived from depth with the
+stored matrices, as the environment derived them.
+
+Why this form for the exact arrays (measured in bench/bench_mcap_writer.py, BENCHMARKS.md): images
+and depth travel once, inside Foxglove's own RawImage (its ``data`` is the array's bytes), where
+the first layout stored each image twice (raw, and base64 in JSON): a 1-camera 128 px demo takes
+0.37 MB instead of 1.01 (front + wrist: 1.93 instead of 3.58, float32 depth being most of it), and
+writes in ~20 % less CPU; reading costs the same. The small arrays take a 25-float protobuf
+message, so Foxglove decodes and plots them instead of flagging a schemaless channel; MCAP
+attachments would also pass, but are stored uncompressed, one blob per array, with no per-frame
+log time. Chunks are zstd (the SDK's default): LZ4 wrote 1.57x the bytes for 20 % less CPU.
+
+Files of the first layout (``c2farm-demo/1``) still load (``protocol.episode_file_v1``): a demo
+cache is keyed by task, cameras and size only, and robot demos cannot be re-recorded.
 
 :func:`read_episode_view` reads only what a viewer needs (images, calibration, poses, actions),
-without the points and without the simulator, so the dashboard can use it.
+without depth and points and without the simulator, so the dashboard can use it.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import foxglove
 import numpy as np
 from mcap.reader import make_reader
-from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
 
-from protocol import foxglove_schemas as fx
+from protocol.episode_channels import ACTION_TOPIC, PROPRIO_SIZE, EpisodeChannels, depth_of, proprio_of
+from protocol.mcap_protobuf import decode
 from protocol.observation import ACTION_SIZE, Observation, camera_frame
 
-PROPRIO_SIZE = 25
-RAW = "application/octet-stream"
-ACTION_TOPIC = "/policy/next_best_pose"
+__all__ = ["ACTION_SIZE", "ACTION_TOPIC", "PROPRIO_SIZE", "Demo", "DemoFileError", "EpisodeView", "depth_of",
+           "load_demo", "proprio_of", "read_episode_view", "write_demo", "write_episode_mcap"]
+FORMAT = "c2farm-demo/2"
 
 
 class DemoFileError(ValueError):
@@ -65,17 +83,8 @@ class Demo:
     actions: list[np.ndarray] = field(default_factory=list)
     end_reason: str = ""  #: policy episodes: why it ended (success, timeout, unreachable, failed); "" for demos
     unreachable_reason: str = ""  #: the control agent's why, for an unreachable end
-
-
-def _proprio(o: Observation) -> np.ndarray:
-    return np.concatenate([o.gripper_pose, [o.gripper_open], o.finger_positions, o.joint_positions,
-                           o.joint_velocities, [o.step]]).astype(np.float32)
-
-
-def _depth(points: np.ndarray, extrinsics: np.ndarray) -> np.ndarray:
-    """Optical-axis depth of a world-frame organised cloud."""
-    e = extrinsics.astype(np.float64)
-    return ((points.astype(np.float64) - e[:3, 3]) @ e[:3, 2]).astype(np.float32)
+    #: wall-clock ns of frame 0; None: the writer takes "now" for the last frame
+    recorded_ns: int | None = None
 
 
 def keyframes_problem(keyframes: object, frames: int) -> str:
@@ -87,91 +96,78 @@ def keyframes_problem(keyframes: object, frames: int) -> str:
     return ""
 
 
+def episode_metadata(demo: Demo, cams: list[str], fmt: str = FORMAT) -> dict[str, str]:
+    """The ``episode`` metadata record: the facts no channel carries."""
+    return {
+        "task": demo.task, "seed": str(demo.seed), "success": json.dumps(demo.success),
+        "frames": str(len(demo.observations)), "cameras": json.dumps(cams),
+        "waypoint_frames": json.dumps(demo.waypoint_frames), "control_hz": str(demo.control_hz),
+        "attempts": str(demo.attempts), "format": fmt,
+        **({"keyframes": json.dumps(demo.keyframes)} if demo.keyframes is not None else {}),
+        **({"scene_bounds": json.dumps([float(b) for b in demo.scene_bounds])} if demo.scene_bounds else {}),
+        **({"end": demo.end_reason, "unreachable_reason": demo.unreachable_reason} if demo.end_reason else {})}
+
+
 def write_demo(path: str | Path, demo: Demo, points_every: int = 5) -> int:
     """Write ``demo``; returns the file size in bytes. Point-cloud previews every ``points_every`` frames."""
     path = Path(path)
     if demo.keyframes is not None and (problem := keyframes_problem(demo.keyframes, len(demo.observations))):
         raise ValueError(problem)
-    cams = list(demo.observations[0].cameras) if demo.observations else []
+    obs = demo.observations
+    cams = list(obs[0].cameras) if obs else []
     dt_ns = int(1e9 / demo.control_hz)
-    with path.open("wb") as f:
-        w = Writer(f, compression=CompressionType.LZ4)
-        w.start(profile="", library="c2farm")
-        sid = {
-            n: w.register_schema(n, SchemaEncoding.JSONSchema, json.dumps(s).encode()) for n, s in fx.SCHEMAS.items()
-        }
-
-        def raw(topic, meta):
-            return w.register_channel(topic, RAW, 0, metadata={k: str(v) for k, v in meta.items()})
-
-        def js(topic, schema):
-            return w.register_channel(topic, MessageEncoding.JSON, sid[schema])
-
-        ch = {"proprio": raw("/raw/proprio", {"dtype": "float32", "shape": PROPRIO_SIZE}),
-              "tf": js("/tf", "foxglove.FrameTransforms"), "joints": js("/joint_states", "c2farm.JointStates")}
-        if demo.actions:
-            ch["action"] = raw(ACTION_TOPIC, {"dtype": "float32", "shape": ACTION_SIZE})
-        for c in cams:
-            size = demo.observations[0].cameras[c].rgb.shape[0]
-            ch[c + "rgb"] = raw(f"/raw/{c}/rgb", {"dtype": "uint8", "shape": f"{size},{size},3"})
-            ch[c + "depth"] = raw(f"/raw/{c}/depth", {"dtype": "float32", "shape": f"{size},{size}"})
-            ch[c + "cal"] = raw(f"/raw/{c}/calibration", {"dtype": "float32", "shape": 25})
-            ch[c + "img"] = js(f"/{c}/image", "foxglove.RawImage")
-            ch[c + "info"] = js(f"/{c}/calibration", "foxglove.CameraCalibration")
-            ch[c + "pc"] = js(f"/{c}/points", "foxglove.PointCloud")
-        for i, o in enumerate(demo.observations):
-            t = i * dt_ns
-
-            def put(key, data: bytes):
-                w.add_message(ch[key], log_time=t, data=data, publish_time=t, sequence=i)
-
-            put("proprio", _proprio(o).tobytes())
-            if i < len(demo.actions):
-                put("action", np.asarray(demo.actions[i], np.float32).reshape(ACTION_SIZE).tobytes())
-            tfs = [fx.transform(t, "grasp", o.gripper_pose)]
-            put("joints", json.dumps({"timestamp": fx.stamp(t), "name": [f"panda_joint{j + 1}" for j in range(7)],
-                                      "position": o.joint_positions.tolist(), "velocity": o.joint_velocities.tolist(),
-                                      "gripper_open": o.gripper_open}).encode())
-            for c in cams:
-                fr = o.cameras[c]
-                put(c + "rgb", np.ascontiguousarray(fr.rgb).tobytes())
-                put(c + "depth", _depth(fr.points, fr.extrinsics).tobytes())
-                put(
-                    c + "cal",
-                    np.concatenate([fr.intrinsics.flatten(), fr.extrinsics.flatten()]).astype(np.float32).tobytes(),
-                )
-                put(c + "img", json.dumps(fx.raw_image(t, c, fr.rgb)).encode())
-                put(c + "info", json.dumps(fx.camera_calibration(t, c, fr.intrinsics, fr.rgb.shape[0])).encode())
-                if i % points_every == 0 or i == len(demo.observations) - 1:
-                    put(c + "pc", json.dumps(fx.point_cloud(t, fr.points, fr.rgb)).encode())
-                tfs.append(fx.transform(t, c, fr.extrinsics))
-            put("tf", json.dumps({"transforms": tfs}).encode())
-        w.add_metadata("episode", {
-            "task": demo.task, "seed": str(demo.seed), "success": json.dumps(demo.success),
-            "frames": str(len(demo.observations)), "cameras": json.dumps(cams),
-            "waypoint_frames": json.dumps(demo.waypoint_frames), "control_hz": str(demo.control_hz),
-            "attempts": str(demo.attempts), "format": "c2farm-demo/1",
-            **({"keyframes": json.dumps(demo.keyframes)} if demo.keyframes is not None else {}),
-            **({"scene_bounds": json.dumps([float(b) for b in demo.scene_bounds])} if demo.scene_bounds else {}),
-            **({"end": demo.end_reason, "unreachable_reason": demo.unreachable_reason} if demo.end_reason else {})})
-        w.finish()
+    start = demo.recorded_ns if demo.recorded_ns is not None else time.time_ns() - max(0, len(obs) - 1) * dt_ns
+    ctx = foxglove.Context()  # this file's own: channels of concurrent writers never mix
+    options = foxglove.mcap.MCAPWriteOptions(compression_threads=0)  # the actors' cores are busy
+    with foxglove.open_mcap(path, allow_overwrite=True, context=ctx, writer_options=options) as w:
+        channels = EpisodeChannels(ctx, with_actions=bool(demo.actions), points_every=points_every)
+        for i, o in enumerate(obs):
+            channels.log(o, start + i * dt_ns, demo.actions[i] if i < len(demo.actions) else None,
+                         points=i % points_every == 0 or i == len(obs) - 1)
+        w.write_metadata("episode", episode_metadata(demo, cams))
     return path.stat().st_size
 
 
 @dataclass
 class _RawEpisode:
-    """The ``/raw/`` and policy channels of one file, by frame index, plus its ``episode`` metadata."""
+    """The exact arrays of one file, by frame index, plus its ``episode`` metadata."""
 
     meta: dict[str, str]
     frames: int
     cameras: list[str]
     proprio: dict[int, np.ndarray]
-    arrays: dict[tuple[str, str], dict[int, np.ndarray]]
+    arrays: dict[tuple[str, str], dict[int, np.ndarray]]  #: by (camera, rgb / depth / calibration)
     actions: dict[int, np.ndarray]
+    recorded_ns: int | None  #: log time of frame 0 (None: a first-layout file, whose times start at 0)
+
+
+def _image(msg) -> np.ndarray:
+    """The exact array in a RawImage (``rgb8`` or ``32FC1``), read-only and without a copy."""
+    dtype, depth = {"rgb8": (np.uint8, 3), "32FC1": (np.dtype("<f4"), 1)}[msg.encoding]
+    arr = np.frombuffer(msg.data, dtype=dtype)
+    return arr.reshape(msg.height, msg.width, 3) if depth == 3 else arr.reshape(msg.height, msg.width)
+
+
+def _read_arrays(reader, cams: list[str], kinds: tuple[str, ...]):
+    """(proprio, arrays by (camera, kind), actions, first log time), each by frame index, of a current file."""
+    topics = {"/raw/proprio": ("proprio", ""), ACTION_TOPIC: ("action", "")}
+    for c in cams:
+        topics.update({f"/{c}/image": (c, "rgb"), f"/{c}/depth": (c, "depth"),
+                       f"/raw/{c}/calibration": (c, "calibration")})
+    topics = {t: k for t, k in topics.items() if k[1] in ("", *kinds)}
+    seen: dict[str, list] = {t: [] for t in topics}
+    first = None
+    for schema, channel, msg in reader.iter_messages(topics=list(topics)):
+        m = decode(schema, msg.data)
+        first = msg.log_time if first is None else min(first, msg.log_time)
+        seen[channel.topic].append(_image(m) if schema.name == "foxglove.RawImage" else np.array(m.values, np.float32))
+    proprio = dict(enumerate(seen.pop("/raw/proprio")))
+    actions = dict(enumerate(seen.pop(ACTION_TOPIC)))
+    return proprio, {topics[t]: dict(enumerate(v)) for t, v in seen.items()}, actions, first
 
 
 def _read_raw(path: Path, kinds: tuple[str, ...]) -> _RawEpisode:
-    """Read the file's raw channels of ``kinds`` (rgb, depth, calibration); DemoFileError on any problem."""
+    """Read the file's exact arrays of ``kinds`` (rgb, depth, calibration); DemoFileError on any problem."""
     if not path.is_file():
         raise DemoFileError(path, "no such file")
     try:
@@ -182,26 +178,14 @@ def _read_raw(path: Path, kinds: tuple[str, ...]) -> _RawEpisode:
                 raise DemoFileError(path, "no 'episode' metadata: not a c2farm demo file")
             ep = meta["episode"]
             n, cams = int(ep["frames"]), json.loads(ep["cameras"])
-            proprio: dict[int, np.ndarray] = {}
-            actions: dict[int, np.ndarray] = {}
-            arrays: dict[tuple[str, str], dict[int, np.ndarray]] = {}
-            for _, channel, msg in reader.iter_messages():
-                topic = channel.topic
-                if not topic.startswith("/raw/") and topic != ACTION_TOPIC:
-                    continue
-                parts = topic.split("/")
-                if len(parts) == 4 and parts[3] not in kinds:
-                    continue
-                dtype = np.dtype(channel.metadata["dtype"])
-                shape = tuple(int(v) for v in channel.metadata["shape"].split(","))
-                arr = np.frombuffer(msg.data, dtype=dtype).reshape(shape)
-                if topic == "/raw/proprio":
-                    proprio[msg.sequence] = arr
-                elif topic == ACTION_TOPIC:
-                    actions[msg.sequence] = arr
-                else:
-                    _, _, cam, kind = parts
-                    arrays.setdefault((cam, kind), {})[msg.sequence] = arr
+            if ep.get("format") == FORMAT:
+                proprio, arrays, actions, start = _read_arrays(reader, cams, kinds)
+            elif ep.get("format") != "c2farm-demo/1":
+                raise DemoFileError(path, f"format {ep.get('format')!r}: this reader knows {FORMAT} and c2farm-demo/1")
+            else:
+                from protocol.episode_file_v1 import read_arrays_v1
+
+                (proprio, arrays, actions), start = read_arrays_v1(reader, kinds), None
     except DemoFileError:
         raise
     except Exception as e:  # truncated, corrupt, not MCAP at all ...
@@ -213,7 +197,7 @@ def _read_raw(path: Path, kinds: tuple[str, ...]) -> _RawEpisode:
         )
     if actions and sorted(actions) != list(range(len(actions))):
         raise DemoFileError(path, f"next-best poses of frames {sorted(actions)} are not one per frame from 0")
-    return _RawEpisode(ep, n, cams, proprio, arrays, actions)
+    return _RawEpisode(ep, n, cams, proprio, arrays, actions, start)
 
 
 def load_demo(path: str | Path) -> Demo:
@@ -237,7 +221,8 @@ def load_demo(path: str | Path) -> Demo:
                 scene_bounds=_read_scene_bounds(path, ep),
                 control_hz=int(ep["control_hz"]),
                 attempts=int(ep["attempts"]), actions=[raw.actions[i].copy() for i in sorted(raw.actions)],
-                end_reason=ep.get("end", ""), unreachable_reason=ep.get("unreachable_reason", ""))
+                end_reason=ep.get("end", ""), unreachable_reason=ep.get("unreachable_reason", ""),
+                recorded_ns=raw.recorded_ns)
 
 
 def _read_scene_bounds(path: Path, meta: dict) -> tuple[float, ...] | None:

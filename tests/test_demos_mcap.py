@@ -58,7 +58,9 @@ def test_file_has_foxglove_channels_and_episode_metadata(demo_file):
         "foxglove.CameraCalibration",
         "foxglove.PointCloud",
         "foxglove.FrameTransforms",
+        "foxglove.JointStates",
     } <= schemas
+    assert all(c.schema_id for c in summary.channels.values())  # no schemaless channel for Foxglove to flag
     assert {"/front/image", "/wrist/calibration", "/front/points", "/tf", "/joint_states"} <= topics
     assert meta["episode"]["task"] == "pick_and_lift" and json.loads(meta["episode"]["success"]) is True
 

@@ -55,7 +55,7 @@ ROUTER_PORT, ZMQ_PORT, DASHBOARD_PORT = 7447, 5560, 8080  # every namespace has 
 CUT_S = 30.0
 MAX_CUT_S = 120.0
 DELAY_MS = 50  #: one-way delay box2's link gets from harness.delay_proxy
-INTRUDER = "intruder"  #: a host on the network that runs none of ours: harness.hostile
+INTRUDER = "intruder"  #: a host on the network that runs none of ours: tests/hostile_client.py
 START_S = 900.0  #: a correctness timeout for the first episodes and weights (torch loads in every role)
 
 #: Settings every host passes (the networks must agree, or weights would not fit the actors').
@@ -358,7 +358,7 @@ def test_an_intruder_with_a_stolen_actor_certificate_gets_nothing_in_or_out(clus
     hub, certs = cluster.topology.hub.ip, cluster.root / "certs"
     before = cluster.status()
     report = json.loads(cluster.topology.run(INTRUDER, [
-        sys.executable, "-m", "harness.hostile", "--router", f"tcp/{hub}:{ROUTER_PORT}",
+        sys.executable, str(REPO / "tests" / "hostile_client.py"), "--router", f"tcp/{hub}:{ROUTER_PORT}",
         "--replay", f"tcp://{hub}:{ZMQ_PORT}", "--run", RUN_ID, "--certs", str(certs),
         "--stolen", f"actor.{cluster.actor('box1')}", "--victim", cluster.actor("box2"),
         "--server-key", str(certs / "curve" / "replay.key")], timeout=180))

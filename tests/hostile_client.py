@@ -1,6 +1,9 @@
 """What an intruder on the network tries against a secure run, as a program run on a host of the bench.
 
-``python -m harness.hostile --router tcp/HUB:7447 --replay tcp://HUB:5560 --run RUN --certs DIR
+It uses this project's own client code (an intruder can read it too), so it lives with the tests,
+not in harness/, which drives the system only from outside.
+
+``python tests/hostile_client.py --router tcp/HUB:7447 --replay tcp://HUB:5560 --run RUN --certs DIR
 --stolen actor.box1-actor-0 --victim box2-actor-0 --server-key DIR/curve/replay.key`` prints one
 JSON object, what each attempt got from where the intruder stands:
 
@@ -111,7 +114,7 @@ def attempts(args: argparse.Namespace) -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m harness.hostile", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="hostile_client.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--router", required=True, help="the router's endpoint, e.g. tcp/10.0.0.1:7447")
     parser.add_argument("--replay", required=True, help="the replay's ZeroMQ endpoint, e.g. tcp://10.0.0.1:5560")
     parser.add_argument("--run", required=True, help="the run id")

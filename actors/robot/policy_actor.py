@@ -1,0 +1,57 @@
+"""``c2farm robot --policy DIR``: the robot actor's greedy evaluation, with weights from an exported policy.
+
+The arm, its cameras, the operator and ``RobotEnv`` are the robot actor's (actor.py); what
+differs is where the weights come from (a policy file, not the weights follower) and that
+nothing joins a run: no Zenoh session, no episodes sent, so it needs no router and no
+learner. The operator speaks through the terminal (or, on franky-sim with
+``robot.scripted_operator``, the scripted reach check), as for ``c2farm robot``. An operator
+stop drops the evaluation in progress; it starts over once resumed, so the rate printed is
+always over whole, unpaused episodes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+
+import torch
+
+from actors.evaluation import evaluate
+from actors.policy_eval import PolicyEvaluation, fixed_policy, result_of
+from actors.robot.actor import RobotSetup
+from actors.robot.connect import open_arm
+from actors.robot.env import OperatorStopped, RobotEnv
+from actors.robot.operator import OperatorChannel, TerminalOperator
+from actors.robot.reach_operator import ReachOperator
+from protocol.policy_file import PolicyFile
+
+log = logging.getLogger("robot")
+
+
+def run_policy(setup: RobotSetup, policy: PolicyFile, stop: threading.Event) -> PolicyEvaluation | None:
+    """``setup.actor.eval_episodes`` greedy episodes on the arm with ``policy``; None when stopped first."""
+    config, robot = setup.actor, setup.robot
+    torch.set_num_threads(max(1, config.torch_threads))
+    qconfig = setup.network.replace(epsilon=0.0, scene_bounds=robot.depth0_bounds)  # as the robot actor: its own box
+    fixed = fixed_policy(policy, qconfig)
+    with contextlib.ExitStack() as stack:
+        arm, sim = open_arm(robot, stack)
+        channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
+        if setup.terminal is not None:
+            operator = stack.enter_context(TerminalOperator(setup.terminal, channel))
+            print(operator.help, flush=True)
+        scripted = ReachOperator(sim, channel) if robot.scripted_operator else None
+        if setup.terminal is None and scripted is None:
+            log.warning("no terminal and no scripted operator: nobody here can say reset done, success or fail "
+                        "(episodes wait for them); run it in a terminal")
+        env = RobotEnv(arm, channel, robot, setup.task, qconfig.episode_length, stop, scripted)
+        while not stop.is_set():
+            try:
+                outcome = evaluate(env, fixed, config, qconfig.cameras, None, stop)
+            except OperatorStopped as why:
+                log.info("evaluation dropped (%s); it starts over once resumed", why)
+                channel.wait_resumed(stop)
+                continue
+            return None if outcome is None else result_of(outcome, setup.task, fixed)
+    return None
