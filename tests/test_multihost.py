@@ -68,6 +68,7 @@ SMALL = [
     "--set", "actor.eval_every_versions=1000",  # one evaluation, then it idles: the CPU is the actors'
     "--set", "actor.record_eval=false",
     "--set", "actor.resend_after_s=3",  # resend soon after the cable is back
+    "--set", "actor.outbox_size=64",  # room for what a 30 s cut holds back (16 fill in about 20 s here)
     "--set", "launch.restart_backoff_s=1",
     "--set", "launch.progress_every_s=0",
     "--set", "launch.router_wait_s=120",  # a starved machine can take more than the default 20 s to start the router
