@@ -6,6 +6,8 @@ synthetic_episode``: pyproject.toml puts bench/ on the tests' path), which bench
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 
 # One intra-op thread, set before anything imports torch: on a 2-core machine that is running
@@ -236,3 +238,13 @@ def status_reader(http, children: "Descendants") -> Callable[[], dict]:
         return {"summary": snap["summary"], **{r["instance"]: r for r in snap["roles"]}}
 
     return status
+
+
+def run_c2farm(*argv: str) -> tuple[int, str, str]:
+    """``c2farm ARGV`` in this process: (exit code, stdout, stderr)."""
+    from deploy.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()

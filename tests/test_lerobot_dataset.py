@@ -7,7 +7,6 @@ evaluation episodes written by the evaluator's own writer stands in for a run.
 
 from __future__ import annotations
 
-import contextlib
 import io
 import json
 import shutil
@@ -18,27 +17,19 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import run_c2farm as c2farm
 from PIL import Image
 
 from actors.demos import demo_to_transitions, load_demo
 from actors.demos.augmentation import SUCCESS_REWARD
 from actors.demos.generate import generate_demos
 from actors.demos.keyframes import demo_keyframes
-from deploy.cli import main
 from protocol import lerobot_demo
 from protocol.episode_file import write_episode_mcap
 from protocol.lerobot_v3 import DatasetWriter, read_dataset
 from protocol.observation import depth_to_points
 
 CAMERAS = ("front", "wrist")
-
-
-def c2farm(*argv: str) -> tuple[int, str, str]:
-    """``c2farm ARGV`` in this process: (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")

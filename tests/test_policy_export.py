@@ -6,8 +6,6 @@ checkpoints into a run directory whose config.yaml the launcher's own code wrote
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import re
 import signal
@@ -20,10 +18,10 @@ import numpy as np
 import pytest
 import torch
 from conftest import REPO, get_free_port
+from conftest import run_c2farm as c2farm
 from safetensors import safe_open
 
 from deploy import config as cfg_mod
-from deploy.cli import main
 from deploy.roles import network_config
 from learner.config import LearnerConfig
 from learner.train import Learner
@@ -37,14 +35,6 @@ TINY = ["--set", "qattention.voxel_size=8", "--set", "qattention.kernels=4", "--
         "--set", "qattention.bf16=false", "--set", "sim.image_size=64"]
 SUCCESS_LINE = re.compile(r"^success (\d+)/2 \((\d+) %\) over 2 episodes of reach_target, "
                           r"policy v(\d+) \(learner step (\d+)\)$", re.M)
-
-
-def c2farm(*argv: str) -> tuple[int, str, str]:
-    """``c2farm ARGV`` in this process: (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
