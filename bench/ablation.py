@@ -70,6 +70,13 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "front-wrist": ("sim.cameras=[front, wrist]",),
     "four-cameras": ("sim.cameras=[front, left_shoulder, right_shoulder, wrist]",),
     "front-wrist-grid-8-8-8": ("sim.cameras=[front, wrist]", *GRID_8_8_8),  # lift_lid's ladder entry
+    # The proprioception's time value held at +1: augmented demos restart the decision count at 0
+    # mid-episode, so the count pairs badly with the scene (put_in_bin's imitation-only study).
+    "untimed": ("qattention.time_feature=false",),
+    "demos-0.5": ("replay.demo_fraction=0.5",),  # 4 of 8 sampled transitions from the demos
+    # lift_lid's entry with both: its seed 2 swung between grasping the knob and pressing into the lid.
+    "front-wrist-grid-8-8-8-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
+                                                 "qattention.time_feature=false", "replay.demo_fraction=0.5"),
 }
 
 

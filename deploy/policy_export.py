@@ -18,11 +18,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors import SafetensorError
-from safetensors.torch import load_file
 
 from deploy.config_loader import ConfigError, to_dict
-from learner.checkpoint import MARKER, load_latest, unflatten_state
+from learner.checkpoint import MARKER, UNREADABLE, load_checkpoint, load_latest
 from protocol.policy_file import PolicyFile, PolicyFileError, write_policy
 
 
@@ -112,10 +110,8 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
         raise ExportError(f"{path}: not a complete learner checkpoint (expected a step-N folder with "
                           f"tensors.safetensors, state.json and {MARKER})")
     try:
-        tensors = load_file(str(folder / "tensors.safetensors"))
-        skeleton = json.loads((folder / "state.json").read_text())
-        state = unflatten_state(tensors, skeleton)
-    except (OSError, ValueError, KeyError, TypeError, SafetensorError) as exc:
+        state = load_checkpoint(folder)
+    except UNREADABLE as exc:
         raise ExportError(f"{folder}: unreadable checkpoint ({' '.join(str(exc).split())[:200]})") from None
     if not isinstance(state, dict) or not {"agent", "step", "version"} <= state.keys():
         raise ExportError(f"{folder}: not a learner checkpoint (no agent, step and version)")

@@ -122,18 +122,26 @@ def load_latest(root: Path, device: str | torch.device = "cpu") -> Any | None:
     """
     for path in reversed(complete_checkpoints(root)):
         try:
-            tensors = load_file(str(path / "tensors.safetensors"), device=str(device))
-            skeleton = json.loads((path / "state.json").read_text(), parse_constant=_no_nonfinite)
-            state = unflatten_state(tensors, skeleton)
-        except (OSError, ValueError, KeyError, TypeError, SafetensorError) as exc:
-            log.error("skipping unreadable checkpoint %s: %s", path.name, exc)
-            continue
-        bad = nonfinite_tensors(tensors)
-        if bad:
-            log.error("skipping checkpoint %s: non-finite values in %d tensors, e.g. %s", path.name, len(bad), bad[0])
-            continue
-        return state
+            return load_checkpoint(path, device)
+        except UNREADABLE as exc:
+            log.error("skipping checkpoint %s: %s", path.name, exc)
     return None
+
+
+#: what reading a damaged checkpoint folder raises
+UNREADABLE = (OSError, ValueError, KeyError, TypeError, SafetensorError)
+
+
+def load_checkpoint(path: Path, device: str | torch.device = "cpu") -> Any:
+    """The state in one checkpoint folder (``step-N``); one of :data:`UNREADABLE` if it does not read back whole
+    and finite (:class:`NonFiniteState` for NaN/inf)."""
+    tensors = load_file(str(path / "tensors.safetensors"), device=str(device))
+    skeleton = json.loads((path / "state.json").read_text(), parse_constant=_no_nonfinite)
+    state = unflatten_state(tensors, skeleton)
+    bad = nonfinite_tensors(tensors)
+    if bad:
+        raise NonFiniteState(f"non-finite values in {len(bad)} tensors, e.g. {bad[0]}")
+    return state
 
 
 def _no_nonfinite(name: str):

@@ -27,10 +27,9 @@ from actors.actor_loop import ActingPolicy, Rollout, episode_seed, rollout, to_e
 from actors.config import ActorConfig
 from actors.evaluation import EvalResult, append_eval_row, evaluate, write_snapshot
 from actors.robot.config import RobotConfig
-from actors.robot.connect import open_arm
+from actors.robot.connect import open_env
 from actors.robot.env import OperatorStopped, RobotEnv
-from actors.robot.operator import FabricOperator, OperatorChannel, TerminalOperator
-from actors.robot.reach_operator import ReachOperator
+from actors.robot.operator import FabricOperator
 from actors.role_loop import EpisodeStats, RoleLinks, first_episode_id
 from protocol.messages import WeightsUpdate
 from protocol.role import RoleContext
@@ -59,17 +58,11 @@ def run(setup: RobotSetup, ctx: RoleContext) -> int:
     stats = EpisodeStats()
     dropped = {"operator_stops": 0}  # episodes an operator stop cut short (not sent)
     with contextlib.ExitStack() as stack:
-        arm, sim = open_arm(robot, stack)
+        arm, channel, env = open_env(robot, task, qconfig.episode_length, ctx.stop, stack, terminal)
         host = arm.config.host
-        channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
         links = stack.enter_context(RoleLinks(ctx, qconfig, sends=config))
         fabric_operator = FabricOperator(links.session, ctx.run_id, ctx.instance, channel)
         stack.callback(fabric_operator.close)
-        if terminal is not None:
-            operator = stack.enter_context(TerminalOperator(terminal, channel))  # restores the terminal on the way out
-            print(operator.help, flush=True)
-        scripted = ReachOperator(sim, channel) if robot.scripted_operator else None
-        env = RobotEnv(arm, channel, robot, task, qconfig.episode_length, ctx.stop, scripted)
         follower, outbox = links.follower, links.outbox
         policy = ActingPolicy(qconfig, follower, epsilon=config.epsilon_at)
         latest: EvalResult | None = None  # the newest greedy evaluation on this arm, for the heartbeat

@@ -44,3 +44,24 @@ def open_arm(robot: RobotConfig, stack: contextlib.ExitStack):
     arm.connect()
     stack.callback(arm.disconnect)
     return arm, sim
+
+
+def open_env(robot: RobotConfig, task: str, episode_length: int, stop, stack: contextlib.ExitStack,
+             terminal=None):
+    """(arm, operator channel, RobotEnv): the configured arm, the channel the operator speaks on and the
+    environment the actor loop steps, closed by ``stack``.
+
+    The operator's keys come from ``terminal`` when given (its settings restored on the way out); on
+    franky-sim with ``robot.scripted_operator`` the scripted reach check sets scenes and judges.
+    """
+    from actors.robot.env import RobotEnv
+    from actors.robot.operator import OperatorChannel, TerminalOperator
+    from actors.robot.reach_operator import ReachOperator
+
+    arm, sim = open_arm(robot, stack)
+    channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
+    if terminal is not None:
+        operator = stack.enter_context(TerminalOperator(terminal, channel))
+        print(operator.help, flush=True)
+    scripted = ReachOperator(sim, channel) if robot.scripted_operator else None
+    return arm, channel, RobotEnv(arm, channel, robot, task, episode_length, stop, scripted)

@@ -20,10 +20,8 @@ import torch
 from actors.evaluation import evaluate
 from actors.policy_eval import PolicyEvaluation, fixed_policy, result_of
 from actors.robot.actor import RobotSetup
-from actors.robot.connect import open_arm
-from actors.robot.env import OperatorStopped, RobotEnv
-from actors.robot.operator import OperatorChannel, TerminalOperator
-from actors.robot.reach_operator import ReachOperator
+from actors.robot.connect import open_env
+from actors.robot.env import OperatorStopped
 from protocol.policy_file import PolicyFile
 
 log = logging.getLogger("robot")
@@ -36,16 +34,10 @@ def run_policy(setup: RobotSetup, policy: PolicyFile, stop: threading.Event) -> 
     qconfig = setup.network.replace(epsilon=0.0, scene_bounds=robot.depth0_bounds)  # as the robot actor: its own box
     fixed = fixed_policy(policy, qconfig)
     with contextlib.ExitStack() as stack:
-        arm, sim = open_arm(robot, stack)
-        channel = OperatorChannel(on_stop=arm.stop, on_resume=arm.resume)
-        if setup.terminal is not None:
-            operator = stack.enter_context(TerminalOperator(setup.terminal, channel))
-            print(operator.help, flush=True)
-        scripted = ReachOperator(sim, channel) if robot.scripted_operator else None
-        if setup.terminal is None and scripted is None:
+        _, channel, env = open_env(robot, setup.task, qconfig.episode_length, stop, stack, setup.terminal)
+        if setup.terminal is None and not robot.scripted_operator:
             log.warning("no terminal and no scripted operator: nobody here can say reset done, success or fail "
                         "(episodes wait for them); run it in a terminal")
-        env = RobotEnv(arm, channel, robot, setup.task, qconfig.episode_length, stop, scripted)
         while not stop.is_set():
             try:
                 outcome = evaluate(env, fixed, config, qconfig.cameras, None, stop)
