@@ -75,8 +75,8 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "untimed": ("qattention.time_feature=false",),
     "demos-0.5": ("replay.demo_fraction=0.5",),  # 4 of 8 sampled transitions from the demos
     # lift_lid's entry with both: its seed 2 swung between grasping the knob and pressing into the lid.
-    "front-wrist-grid-8-8-8-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
-                                                 "qattention.time_feature=false", "replay.demo_fraction=0.5"),
+    "lid-entry-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
+                                    "qattention.time_feature=false", "replay.demo_fraction=0.5"),
 }
 
 
