@@ -74,6 +74,7 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # mid-episode, so the count pairs badly with the scene (put_in_bin's imitation-only study).
     "untimed": ("qattention.time_feature=false",),
     "demos-0.5": ("replay.demo_fraction=0.5",),  # 4 of 8 sampled transitions from the demos
+    "untimed-demos-0.5": ("qattention.time_feature=false", "replay.demo_fraction=0.5"),
     # lift_lid's entry with both: its seed 2 swung between grasping the knob and pressing into the lid.
     "lid-entry-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
                                     "qattention.time_feature=false", "replay.demo_fraction=0.5"),
