@@ -75,6 +75,10 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "untimed": ("qattention.time_feature=false",),
     "demos-0.5": ("replay.demo_fraction=0.5",),  # 4 of 8 sampled transitions from the demos
     "untimed-demos-0.5": ("qattention.time_feature=false", "replay.demo_fraction=0.5"),
+    # The last depth's translation Q stays near 0 while its target is ~0.5: its TD is one of five
+    # heads averaged, against the whole L1 regulariser over every voxel. A fifth of the regulariser:
+    "untimed-demos-0.5-qreg-0.2": ("qattention.time_feature=false", "replay.demo_fraction=0.5",
+                                   "qattention.lambda_trans_qreg=0.2"),
     # lift_lid's entry with both: its seed 2 swung between grasping the knob and pressing into the lid.
     "lid-entry-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
                                     "qattention.time_feature=false", "replay.demo_fraction=0.5"),
