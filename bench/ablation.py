@@ -79,6 +79,9 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # heads averaged, against the whole L1 regulariser over every voxel. A fifth of the regulariser:
     "untimed-demos-0.5-qreg-0.2": ("qattention.time_feature=false", "replay.demo_fraction=0.5",
                                    "qattention.lambda_trans_qreg=0.2"),
+    # ... or its TD weighed as a whole head (the other depths' weight):
+    "untimed-demos-0.5-last-td-1": ("qattention.time_feature=false", "replay.demo_fraction=0.5",
+                                    "qattention.last_translation_td=1.0"),
     # lift_lid's entry with both: its seed 2 swung between grasping the knob and pressing into the lid.
     "lid-entry-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
                                     "qattention.time_feature=false", "replay.demo_fraction=0.5"),

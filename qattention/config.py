@@ -41,6 +41,10 @@ class QAttentionConfig:
     grad_clip: float = 0.01  #: element-wise gradient clip by value, > 0
     lambda_trans_qreg: float = 1.0  #: L1 regulariser weight on all translation Q-values, >= 0
     lambda_rot_qreg: float = 1.0  #: L1 regulariser weight on all rotation/gripper Q-values, >= 0
+    #: the last depth's translation TD weight; its 3 rotation and gripper TDs weigh 1/5 each. 0.2: the five heads
+    #: averaged (the reference), which leaves the last depth's translation Q near 0 on 2-core budgets; 1.0: as much
+    #: as every other depth's (BENCHMARKS.md, the ladder)
+    last_translation_td: float = 0.2
     per_alpha: float = 0.7  #: PER exponent applied to the returned priorities, in [0, 1]
     #: large-margin loss on demo rows (DQfD): every other choice's Q must sit this far below the demo's, per head; 0 =
     #: off, as the reference
@@ -84,8 +88,9 @@ class QAttentionConfig:
         if not self.cameras or len(set(self.cameras)) != len(self.cameras):
             raise ValueError(f"cameras must name at least one camera, each once (got {list(self.cameras)})")
         _range(self, 0, None, "lr", "grad_clip", "reward_scale", open_low=True)
-        _range(self, 0, None, "image_crop", "weight_decay", "lambda_trans_qreg", "lambda_rot_qreg", "demo_margin",
-               "lambda_demo_margin", "explore_voxel_sigma", "explore_rotation_sigma")
+        _range(self, 0, None, "image_crop", "weight_decay", "lambda_trans_qreg", "lambda_rot_qreg",
+               "last_translation_td", "demo_margin", "lambda_demo_margin", "explore_voxel_sigma",
+               "explore_rotation_sigma")
         _range(self, 0, 1, "tau", open_low=True)
         _range(self, 0, 1, "gamma", "per_alpha", "crop_shift", "epsilon")
         _range(self, 0, 180, "demo_yaw_augmentation")

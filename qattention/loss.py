@@ -2,7 +2,9 @@
 
 Per depth: double-DQN target (online argmax on s_t+1, target-net value), at the last depth the
 mean over translation, 3 rotation axes and gripper; y = max(r*scale + gamma*(1-terminal)*q', 0);
-Huber TD per head, averaged; L1 Q-regulariser over all outputs; importance-weighted mean.
+Huber TD per head, averaged (at the last depth the translation head's share is
+``last_translation_td``, 1/5 in the reference); L1 Q-regulariser over all outputs;
+importance-weighted mean.
 Optional (not in the reference): DQfD's large-margin loss on demo rows (``demo_margin`` > 0).
 Deviation: the s_t+1 cube of depth d>=1 is centred on the online net's greedy depth d-1 choice
 at s_t+1 (the cascade's own max), not on a coordinate stored with the next observation.
@@ -94,7 +96,10 @@ def depth_loss(q_trans, q_rg, voxel_index, rot_grip, y, weights, config, is_demo
         qreg = qreg + config.lambda_rot_qreg * q_rg.abs().mean(1)
         heads += [(rot[:, i], rot_grip[:, i]) for i in range(3)] + [(grip, rot_grip[:, 3])]
     td = torch.stack(td, 1)
-    delta = td.mean(1)
+    if q_rg is None:
+        delta = td[:, 0]
+    else:  # the reference's mean of five heads, with the translation head's share configurable
+        delta = config.last_translation_td * td[:, 0] + td[:, 1:].sum(1) / 5
     margin = torch.zeros_like(delta)
     if config.demo_margin > 0 and is_demo is not None and bool(is_demo.any()):
         per_head = torch.stack([margin_loss(q, a, config.demo_margin) for q, a in heads], 1).mean(1)

@@ -139,3 +139,22 @@ def test_demo_margin_teaches_the_demos_choices_without_any_reward():
     assert rot_grip_hit.all()
     voxels_hit, rot_grip_hit = trained(margin=0.0)
     assert voxels_hit[:, 0].sum() <= 1 and rot_grip_hit.sum() <= 8  # TD alone: chance
+
+
+def test_the_last_depths_translation_q_reaches_its_target_when_its_td_weighs_a_whole_head():
+    """At the last depth the reference averages five TD heads, so translation's TD weighs a fifth against the
+    whole L1 regulariser; at the reference's learning rate its Q at the label stays near 0 while depth 0's
+    reaches the target. ``last_translation_td=1`` weighs it as a whole head and it fits."""
+    batches = [batch(8, seed=s, demos=True) for s in range(4)]  # y = 1 at every depth
+
+    def q_at_labels(weight):
+        torch.manual_seed(0)
+        cfg = SMALL.replace(lr=5e-4, crop_augmentation=False, last_translation_td=weight, bf16=False)
+        agent = C2FARM(cfg, seed=0)
+        for i in range(80):
+            metrics, _ = agent.update(batches[i % len(batches)])
+        return metrics["q_chosen/depth0"], metrics["q_chosen/depth1"]
+
+    (first, last), (first_whole, last_whole) = q_at_labels(0.2), q_at_labels(1.0)
+    assert first > 0.7 and first_whole > 0.7  # depth 0 fits either way
+    assert last < 0.2 < 0.5 < last_whole, (last, last_whole)
