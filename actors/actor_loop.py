@@ -27,6 +27,7 @@ from protocol.transition import pad_act_labels, stamp_scene_bounds
 from protocol.weights_follower import WeightsFollower
 from qattention.agent import C2FARM
 from qattention.batch import ObservationBatch
+from qattention.cascade import ActResult
 from qattention.config import QAttentionConfig
 
 log = logging.getLogger("actor")
@@ -52,11 +53,14 @@ class Rollout:
         return float(sum(self.rewards))
 
 
-def rollout(env: Env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, top_k: int = 0) -> Rollout | None:
+def rollout(env: Env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, top_k: int = 0,
+            on_decision: Callable[[Observation, ActResult], None] | None = None) -> Rollout | None:
     """Play one episode: observe, choose a next-best pose, let the control agent execute it.
 
     ``top_k`` > 1 lets an unreachable choice give way to the best reachable one of the top-K.
-    Returns None when ``stop`` is set mid-episode (a cut-short episode is not data).
+    ``on_decision`` sees each observation with the cascade's decision on it before the arm
+    moves (the live view draws the attention). Returns None when ``stop`` is set mid-episode
+    (a cut-short episode is not data).
     """
     obs = env.reset(seed=seed)
     result = Rollout(observations=[obs])
@@ -66,6 +70,8 @@ def rollout(env: Env, agent: C2FARM, cameras, seed: int, explore: bool, stop=Non
             return None
         act = agent.act(ObservationBatch.from_observations([obs], cameras, agent.device), explore=explore,
                         reachable=reachable, top_k=top_k)
+        if on_decision is not None:
+            on_decision(obs, act)
         if act.reach_checks is not None:
             result.reach_checks += int(act.reach_checks[0])
             result.reach_replaced += int(act.reach_replaced[0])

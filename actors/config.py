@@ -33,8 +33,8 @@ class ActorConfig:
     #: evaluator: evaluate a version only if this many versions passed since the last, >= 1 (1 = every version)
     eval_every_versions: int = 5
     record_eval: bool = True  #: evaluator: write each evaluation episode as MCAP under runs/<id>/eval/
-    #: evaluator: serve its scene live to Foxglove (WebSocket, loopback, subprotocol foxglove.sdk.v1) on this port;
-    #: -1 = off, 0 = a free port (logged)
+    #: evaluator and robot actor: serve the scene and each decision's attention live to Foxglove (WebSocket,
+    #: loopback, subprotocol foxglove.sdk.v1) on this port; -1 = off, 0 = a free port (logged)
     foxglove_port: int = -1
     #: every episode carries its depth-0 box (extra_scene_bounds); needed in a run with a robot actor, whose box is not
     #: the task's (the replay wants one set of arrays)

@@ -22,7 +22,9 @@ import torch
 from actors.actor_loop import ActingPolicy, Rollout, rollout
 from actors.config import ActorConfig
 from actors.role_loop import ActingSetup, RoleLinks
+from protocol.observation import Observation
 from protocol.role import RoleContext
+from qattention.cascade import ActResult
 
 log = logging.getLogger("eval")
 
@@ -48,12 +50,15 @@ class EvalResult:
 
 
 def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras, record_dir: Path | None = None, stop=None,
-             on_first: Callable[[Rollout], None] | None = None) -> tuple[float, float, float, int] | None:
+             on_first: Callable[[Rollout], None] | None = None,
+             on_decision: Callable[[Observation, ActResult], None] | None = None,
+             ) -> tuple[float, float, float, int] | None:
     """Greedy rollouts on seeds ``eval_seed, eval_seed + 1, ...``: (success, return, unreachable, n).
 
     Runs ``eval_episodes``, or only ``eval_min_episodes`` when none of those succeeded (a 0 %
     point needs fewer episodes to be sure of). None when stopped part-way: a partial result
-    would bias the curve. ``on_first`` is handed the first episode (the Q-attention snapshot).
+    would bias the curve. ``on_first`` is handed the first episode (the Q-attention snapshot),
+    ``on_decision`` every decision as it is made (``rollout``'s; the live view).
     """
     if record_dir is not None:
         record_dir.mkdir(parents=True, exist_ok=True)
@@ -64,7 +69,7 @@ def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras, record_dir
         if stop is not None and stop.is_set():
             return None
         r = rollout(env, policy.agent, cameras, config.eval_seed + i, explore=False, stop=stop,
-                    top_k=config.reachable_top_k)
+                    top_k=config.reachable_top_k, on_decision=on_decision)
         if r is None:
             return None
         successes += int(r.success)
@@ -117,7 +122,8 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
                     continue  # did not fit the networks (counted by the follower)
                 record = ctx.run_dir / "eval" if config.record_eval else None
                 first: list[Rollout] = []
-                result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append)
+                result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append,
+                                  on_decision=live.show_decision if live else None)
                 if result is None:
                     break  # stopped mid-evaluation
                 if first:
@@ -144,13 +150,23 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
 
 @contextlib.contextmanager
 def live_view(port: int):
-    """The evaluator's scene served live to Foxglove on ``port`` (:mod:`actors.live_view`); None when ``port`` is -1."""
+    """The scene served live to Foxglove on ``port`` (:mod:`actors.live_view`); None when ``port`` is -1.
+
+    Also None, with a warning, when the port is taken (``c2farm launch --robot --foxglove`` starts
+    an evaluator and a robot actor that both ask for it): a viewer never stops a role.
+    """
     if port < 0:
         yield None
         return
     from actors.live_view import LiveView
 
-    with LiveView(port=port) as live:
+    try:
+        live = LiveView(port=port)
+    except RuntimeError as exc:  # foxglove's FoxgloveError: the port is in use
+        log.warning("no live view for Foxglove on port %d (%s); --foxglove 0 picks a free port", port, exc)
+        yield None
+        return
+    with live:
         log.info("live view for Foxglove at ws://127.0.0.1:%d (Open connection, Foxglove WebSocket)", live.port)
         yield live
 

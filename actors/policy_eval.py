@@ -90,5 +90,6 @@ def evaluate_in_sim(policy: PolicyFile, sim: SimConfig, actor: ActorConfig,
     torch.set_num_threads(max(1, actor.torch_threads))
     with contextlib.closing(PandaEnv(sim)) as bare, live_view(actor.foxglove_port) as live:
         env = live.wrap(bare) if live else bare
-        outcome = evaluate(env, fixed, actor, qconfig.cameras, None, stop)
+        outcome = evaluate(env, fixed, actor, qconfig.cameras, None, stop,
+                           on_decision=live.show_decision if live else None)
     return None if outcome is None else result_of(outcome, sim.task, fixed)

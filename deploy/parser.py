@@ -109,8 +109,8 @@ def _common(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--task", metavar="NAME",
                    help=f"task every actor steps (sim.task): {', '.join(TASKS)} (default: {DEFAULT_TASK})")
     g.add_argument("--foxglove", nargs="?", type=int, const=8765, metavar="PORT",
-                   help="serve the evaluator's scene live to Foxglove on ws://127.0.0.1:PORT (actor.foxglove_port; "
-                   "PORT defaults to 8765, 0 picks a free one)")
+                   help="serve the evaluator's (or the robot actor's) scene and each decision's attention live to "
+                   "Foxglove on ws://127.0.0.1:PORT (actor.foxglove_port; PORT defaults to 8765, 0 picks a free one)")
     g.add_argument("--log-level", default="INFO", help="Python log level (default: %(default)s)")
 
 

@@ -5,7 +5,8 @@ q_rot_grip [B, 3*bins+2] | None)``, so the same loop serves the networks and any
 The final translation is the centre of the last chosen voxel; rotation/gripper come from the
 last depth's head (greedy, or explored, see exploration.py). With a reachability test and
 ``top_k`` > 1, an unreachable choice is replaced by the best reachable candidate of the last
-depth (reachability.py).
+depth (reachability.py). Each depth's best voxels by Q come back too (``top_voxels``), for
+whoever watches the decision (the live view); they never travel to the replay.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ from .voxelise import child_bounds, unflatten_index, voxel_centre, voxelise
 QFunction = Callable[[torch.Tensor, torch.Tensor], tuple]
 #: Reachability candidates' rotations differ by at least this much per Euler axis (reachability.py).
 REACH_SEPARATION_DEG = 30
+#: Best voxels per depth kept in ``ActResult.top_voxels``: enough to see where the attention spreads.
+TOP_VOXELS = 8
 
 
 @dataclass
@@ -36,6 +39,10 @@ class ActResult:
     rot_grip_indices: np.ndarray  #: int64 [B, 4] Euler bins + gripper index
     bounds: np.ndarray  #: float32 [B, D, 6] the box each depth voxelised
     q_values: np.ndarray  #: float32 [B, D] Q of the chosen voxel per depth
+    #: float32 [B, D, TOP_VOXELS, 4] each depth's best voxels by Q, best first: centre xyz, Q (the network's
+    #: ranking: an explored or reachability-replaced choice may lie elsewhere)
+    top_voxels: np.ndarray
+    voxel_size: int  #: voxels per side of every depth's grid (a voxel's edge is its box's extent / voxel_size)
     reach_checks: np.ndarray | None = None  #: int64 [B] reachability tests run (None: acting without them)
     reach_replaced: np.ndarray | None = None  #: bool [B] the first choice was unreachable and a candidate replaced it
 
@@ -59,6 +66,13 @@ def depth_grid(obs: ObservationBatch, config, centre: torch.Tensor | None, bound
     return voxelise(points, rgb, bounds, config.voxel_size)
 
 
+def top_voxels(q_trans: torch.Tensor, bounds: torch.Tensor, voxel_size: int, k: int) -> torch.Tensor:
+    """The ``k`` best voxels of ``q_trans`` [B, V, V, V] in ``bounds`` [B, 6], best first: [B, k, 4] centre xyz, Q."""
+    q, flat = q_trans.reshape(q_trans.shape[0], -1).float().topk(min(k, voxel_size ** 3), dim=1)
+    centres = voxel_centre(unflatten_index(flat, voxel_size), bounds[:, None], voxel_size)
+    return torch.cat([centres.float(), q[..., None]], -1)
+
+
 def split_rot_grip(q_rot_grip: torch.Tensor, bins: int):
     """[B, 3*bins+2] -> rotation Q [B, 3, bins], gripper Q [B, 2]."""
     return q_rot_grip[:, : 3 * bins].reshape(-1, 3, bins), q_rot_grip[:, 3 * bins :]
@@ -79,9 +93,10 @@ def descend(
     proprio = obs.proprioception(config)
     bounds = workspace = obs.bounds(config.scene_bounds)
     centre = None
-    idxs, coords, all_bounds, qs = [], [], [], []
+    idxs, coords, all_bounds, qs, tops = [], [], [], [], []
     for d in range(config.depths):
         q_trans, q_rg = q_functions[d](depth_grid(obs, config, centre, bounds), proprio)
+        tops.append(top_voxels(q_trans, bounds, v, TOP_VOXELS))
         idx = unflatten_index(q_trans.reshape(b, -1).argmax(1), v)
         if explore:
             idx = explore_voxel(idx, config, generator)
@@ -119,6 +134,8 @@ def descend(
         rot_grip_indices=np_(torch.cat([rot, grip[:, None]], 1)).astype(np.int64),
         bounds=np_(torch.stack(all_bounds, 1)).astype(np.float32),
         q_values=np_(torch.stack(qs, 1).float()),
+        top_voxels=np_(torch.stack(tops, 1)).astype(np.float32),
+        voxel_size=v,
         reach_checks=checks,
         reach_replaced=replaced,
     )

@@ -6,11 +6,13 @@ checkpoints into a run directory whose config.yaml the launcher's own code wrote
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -220,18 +222,53 @@ def test_a_runs_config_yaml_relaunches_it_exactly(tmp_path):
     assert written.read_text() == text
 
 
-def test_the_robot_acts_greedily_with_an_exported_policy(exported, tmp_path):
-    """`c2farm robot --policy` on franky-sim, the scripted operator judging: the evaluation, with no run."""
+def test_the_robot_acts_greedily_with_an_exported_policy_watched_live_in_foxglove(exported, tmp_path):
+    """`c2farm robot --policy --foxglove 0` on franky-sim, the scripted operator judging: the evaluation, with no
+    run, while a Foxglove client sees the arm's camera and each decision's attention."""
     pytest.importorskip("franky")
     pytest.importorskip("franky_sim")
-    done = subprocess.run([sys.executable, "-m", "c2farm", "robot", "--policy", str(exported), "--robot", "franky-sim",
-                           "--camera", "mujoco", "--set", "robot.scripted_operator=true", "--set",
-                           "robot.franka.dynamics_factor=0.5", "--set", "robot.verdict_wait_s=1", "--episodes", "1"],
-                          cwd=tmp_path, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert re.search(r"^success [01]/1 \((0|100) %\) over 1 episode of reach_target, policy v3 \(learner step 3\)$",
-                     done.stdout, re.M), done.stdout
-    assert not any(tmp_path.iterdir())
+    from test_live_view import Client
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    proc = subprocess.Popen([sys.executable, "-m", "c2farm", "robot", "--policy", str(exported), "--robot",
+                             "franky-sim", "--camera", "mujoco", "--set", "robot.scripted_operator=true", "--set",
+                             "robot.franka.dynamics_factor=0.5", "--set", "robot.verdict_wait_s=1", "--episodes", "1",
+                             "--foxglove", "0"], cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+
+    def read() -> None:  # drained as it comes, so the pipe never fills while the client listens
+        for line in proc.stdout:
+            lines.append(line)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        address = None
+        deadline = time.monotonic() + 300
+        while address is None and time.monotonic() < deadline and (proc.poll() is None or reader.is_alive()):
+            address = next((f.group(0) for line in list(lines) if (f := re.search(r"ws://127\.0\.0\.1:\d+", line))),
+                           None)
+            time.sleep(0.05)
+        assert address, "the robot never logged its live view's address:\n" + "".join(lines)[-2000:]
+        wanted = {"/front/image", "/policy/attention"}
+        with connect(address, subprotocols=["foxglove.sdk.v1"], open_timeout=30) as ws:
+            client = Client(ws)
+            with contextlib.suppress(ConnectionClosed):  # the server closes when the evaluation is done
+                while not wanted <= client.received.keys() and time.monotonic() < deadline:
+                    client.pump(1.0)
+        assert wanted <= client.received.keys(), sorted(client.received)
+        assert [e.id for e in client.received["/policy/attention"][0].entities] == ["depth0", "depth1"]
+        assert proc.wait(timeout=600) == 0, "".join(lines)[-2000:]
+        reader.join(timeout=30)
+        output = "".join(lines)
+        assert re.search(r"^success [01]/1 \((0|100) %\) over 1 episode of reach_target, policy v3 "
+                         r"\(learner step 3\)$", output, re.M), output[-2000:]
+        assert not any(tmp_path.iterdir())
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 def test_a_run_that_acted_with_an_average_exports_the_average(tmp_path):

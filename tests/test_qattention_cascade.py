@@ -7,6 +7,7 @@ import torch
 from protocol.observation import CameraFrame, Observation
 from qattention import C2FARM, ObservationBatch, QAttentionConfig, descend
 from qattention.action_codec import bins_to_rotation
+from qattention.cascade import TOP_VOXELS
 from qattention.crop import crop_images, gather_points, project_to_pixel
 from qattention.reachability import inside_workspace, ranked_candidates
 from qattention.synthetic import observation_arrays
@@ -50,6 +51,24 @@ def test_cascade_translation_error_is_under_a_centimetre_anywhere_in_the_scene()
     # depth 1 was voxelised in the 0.30 m cube around the depth-0 choice
     np.testing.assert_allclose(result.bounds[:, 1, 3:] - result.bounds[:, 1, :3], 0.30, atol=1e-6)
     assert (result.rot_grip_indices == [7, 20, 50, 1]).all()
+
+
+def test_each_depth_reports_its_best_voxels_best_first_the_greedy_choice_leading():
+    """``top_voxels`` is what the live view draws: per depth the K best voxels' centres and Q."""
+
+    def random_q(grid, proprio):  # distinct Q everywhere: one best voxel per depth
+        q_trans = torch.rand(grid.shape[0], *grid.shape[2:], generator=torch.Generator().manual_seed(0))
+        return q_trans, torch.zeros(grid.shape[0], 3 * CFG.rotation_bins + 2)
+
+    targets = np.array([[0.2, 0.0, 1.0], [0.1, 0.1, 0.9]])
+    result = descend(single_point_scene(targets), [random_q] * 2, CFG)
+    assert result.top_voxels.shape == (2, CFG.depths, TOP_VOXELS, 4) and result.voxel_size == CFG.voxel_size
+    best = result.top_voxels[:, :, 0]
+    np.testing.assert_allclose(best[:, -1, :3], result.action[:, :3], atol=1e-6)  # the last depth's best is the pose
+    np.testing.assert_allclose(best[..., :3], result.attention_coordinates, atol=1e-6)
+    np.testing.assert_array_equal(best[..., 3], result.q_values)
+    assert (np.diff(result.top_voxels[..., 3], axis=-1) <= 0).all()  # sorted, best first
+    assert set(result.replay_elements()) == {"voxel_indices", "attention_coordinates", "rot_grip_indices"}
 
 
 def test_projection_inverts_the_point_cloud_and_crops_follow_it():

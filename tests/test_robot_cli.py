@@ -86,3 +86,9 @@ def test_more_cameras_than_an_observation_holds_is_an_error_not_a_silent_drop():
 def test_the_robot_preset_falls_back_to_poses_the_safety_limits_allow():
     config = resolve("launch", "--robot", "franka", "--robot-host", "172.16.0.2", preset="robot")
     assert config.actor.reachable_top_k == 8
+
+
+def test_foxglove_serves_the_robot_actors_scene_on_8765_or_the_port_given():
+    assert resolve("robot", "--run-id", "r1", "--robot", "franky-sim", "--foxglove").actor.foxglove_port == 8765
+    assert resolve("robot", "--run-id", "r1", "--foxglove", "9000").actor.foxglove_port == 9000
+    assert resolve("robot", "--run-id", "r1").actor.foxglove_port == -1  # off unless asked

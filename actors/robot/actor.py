@@ -8,7 +8,8 @@ and drops the cut-short episode; the policy picks poses in the robot's own depth
 (``robot.scene_bounds``), which every observation carries to the learner. With
 ``robot.evaluate`` it also plays the evaluator's greedy episodes, into ``metrics/eval.csv``.
 ``robot.arm: franky-sim`` starts franky-sim inside this process (loopback, MuJoCo cameras),
-so CI drives the very code that drives a real arm.
+so CI drives the very code that drives a real arm. With ``actor.foxglove_port`` (``--foxglove``)
+the arm's scene and every decision's attention are served live to Foxglove (actors/live_view.py).
 """
 
 from __future__ import annotations
@@ -19,20 +20,22 @@ import sys
 import time
 import zlib
 from dataclasses import dataclass
-from typing import TextIO
+from typing import Callable, TextIO
 
 import torch
 
 from actors.actor_loop import ActingPolicy, Rollout, episode_seed, rollout, to_episode
 from actors.config import ActorConfig
-from actors.evaluation import EvalResult, append_eval_row, evaluate, write_snapshot
+from actors.evaluation import EvalResult, append_eval_row, evaluate, live_view, write_snapshot
 from actors.robot.config import RobotConfig
 from actors.robot.connect import open_env
 from actors.robot.env import OperatorStopped, RobotEnv
 from actors.robot.operator import FabricOperator
 from actors.role_loop import EpisodeStats, RoleLinks, first_episode_id
 from protocol.messages import WeightsUpdate
+from protocol.observation import Observation
 from protocol.role import RoleContext
+from qattention.cascade import ActResult
 from qattention.config import QAttentionConfig
 
 log = logging.getLogger("robot")
@@ -59,6 +62,8 @@ def run(setup: RobotSetup, ctx: RoleContext) -> int:
     dropped = {"operator_stops": 0}  # episodes an operator stop cut short (not sent)
     with contextlib.ExitStack() as stack:
         arm, channel, env = open_env(robot, task, qconfig.episode_length, ctx.stop, stack, terminal)
+        live = stack.enter_context(live_view(config.foxglove_port))
+        env, on_decision = (live.wrap(env), live.show_decision) if live else (env, None)
         host = arm.config.host
         links = stack.enter_context(RoleLinks(ctx, qconfig, sends=config))
         fabric_operator = FabricOperator(links.session, ctx.run_id, ctx.instance, channel)
@@ -86,7 +91,7 @@ def run(setup: RobotSetup, ctx: RoleContext) -> int:
                     and evaluation_due(adopted.version, evaluated, config)):
                 started = time.monotonic()
                 try:
-                    result = evaluate_here(env, policy, config, qconfig, adopted, ctx)
+                    result = evaluate_here(env, policy, config, qconfig, adopted, ctx, on_decision)
                     if result is not None:
                         latest, evaluated = result, adopted.version
                         next_evaluation = training_resumes_until(started, time.monotonic(), robot.eval_share)
@@ -98,7 +103,7 @@ def run(setup: RobotSetup, ctx: RoleContext) -> int:
             seed = episode_seed(ctx.seed, ctx.instance, episode_id)
             try:
                 r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop,
-                            top_k=config.reachable_top_k)
+                            top_k=config.reachable_top_k, on_decision=on_decision)
             except OperatorStopped as why:
                 dropped["operator_stops"] += int(channel.paused)
                 log.info("episode dropped: %s", why)
@@ -132,7 +137,8 @@ def training_resumes_until(started: float, ended: float, share: float) -> float:
 
 
 def evaluate_here(env: RobotEnv, policy: ActingPolicy, config: ActorConfig, qconfig: QAttentionConfig,
-                  update: WeightsUpdate, ctx: RoleContext) -> EvalResult | None:
+                  update: WeightsUpdate, ctx: RoleContext,
+                  on_decision: Callable[[Observation, ActResult], None] | None = None) -> EvalResult | None:
     """The evaluator's greedy episodes on this arm, appended to ``metrics/eval.csv``; None if stopped part-way.
 
     A run with a robot has no simulated evaluator, so this is its learning curve (the
@@ -141,7 +147,8 @@ def evaluate_here(env: RobotEnv, policy: ActingPolicy, config: ActorConfig, qcon
     """
     record = ctx.run_dir / "eval" if config.record_eval else None
     first: list[Rollout] = []
-    result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append)
+    result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append,
+                      on_decision=on_decision)
     if result is None:
         return None
     success, mean_return, unreachable, n = result

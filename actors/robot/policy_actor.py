@@ -6,7 +6,8 @@ nothing joins a run: no Zenoh session, no episodes sent, so it needs no router a
 learner. The operator speaks through the terminal (or, on franky-sim with
 ``robot.scripted_operator``, the scripted reach check), as for ``c2farm robot``. An operator
 stop drops the evaluation in progress; it starts over once resumed, so the rate printed is
-always over whole, unpaused episodes.
+always over whole, unpaused episodes. ``actor.foxglove_port`` (``--foxglove``) serves the arm's
+scene and every decision's attention live to Foxglove, as the evaluator does.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import threading
 
 import torch
 
-from actors.evaluation import evaluate
+from actors.evaluation import evaluate, live_view
 from actors.policy_eval import PolicyEvaluation, fixed_policy, result_of
 from actors.robot.actor import RobotSetup
 from actors.robot.connect import open_env
@@ -35,12 +36,14 @@ def run_policy(setup: RobotSetup, policy: PolicyFile, stop: threading.Event) -> 
     fixed = fixed_policy(policy, qconfig)
     with contextlib.ExitStack() as stack:
         _, channel, env = open_env(robot, setup.task, qconfig.episode_length, stop, stack, setup.terminal)
+        live = stack.enter_context(live_view(config.foxglove_port))
+        env, on_decision = (live.wrap(env), live.show_decision) if live else (env, None)
         if setup.terminal is None and not robot.scripted_operator:
             log.warning("no terminal and no scripted operator: nobody here can say reset done, success or fail "
                         "(episodes wait for them); run it in a terminal")
         while not stop.is_set():
             try:
-                outcome = evaluate(env, fixed, config, qconfig.cameras, None, stop)
+                outcome = evaluate(env, fixed, config, qconfig.cameras, None, stop, on_decision=on_decision)
             except OperatorStopped as why:
                 log.info("evaluation dropped (%s); it starts over once resumed", why)
                 channel.wait_resumed(stop)
