@@ -69,7 +69,7 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # Cameras fused into one grid (the paper adds wrist and shoulder views where the front one is occluded).
     "front-wrist": ("sim.cameras=[front, wrist]",),
     "four-cameras": ("sim.cameras=[front, left_shoulder, right_shoulder, wrist]",),
-    "front-wrist-grid-8-8-8": ("sim.cameras=[front, wrist]", *GRID_8_8_8),  # lift_lid's ladder entry
+    "front-wrist-grid-8-8-8": ("sim.cameras=[front, wrist]", *GRID_8_8_8),  # lift_lid's first ladder entry
     # The proprioception's time value held at +1: augmented demos restart the decision count at 0
     # mid-episode, so the count pairs badly with the scene (put_in_bin's imitation-only study).
     "untimed": ("qattention.time_feature=false",),
@@ -82,7 +82,7 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # ... or its TD weighed as a whole head (the other depths' weight):
     "untimed-demos-0.5-last-td-1": ("qattention.time_feature=false", "replay.demo_fraction=0.5",
                                     "qattention.last_translation_td=1.0"),
-    # lift_lid's entry with both: its seed 2 swung between grasping the knob and pressing into the lid.
+    # lift_lid's ladder entry: the first one with both (its seed 2 swung below 80 % for 30 minutes).
     "lid-entry-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
                                     "qattention.time_feature=false", "replay.demo_fraction=0.5"),
 }
