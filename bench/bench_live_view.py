@@ -165,8 +165,9 @@ def main() -> None:
           f"{qconfig.depths} depths), {args.rounds} rounds x {args.decisions} decisions per variant, 1 torch thread")
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())
     wall, used = sum(map(sum, seconds.values())), sum(cpu.values())
+    shared = "; other work shared the cores: read the CPU columns" if used < 0.9 * wall else ""
     print(f"CPU: {cpu_model()}; commit {commit()}; load average at the end {load}; the loop had "
-          f"{100 * used / wall:.0f} % of a core ({used:.0f} CPU s in {wall:.0f} s; other work shares the cores)")
+          f"{100 * used / wall:.0f} % of a core ({used:.0f} CPU s in {wall:.0f} s{shared})")
     print()
     print("| variant | decisions | episodes (cut short) | seconds | decisions/s | median round decisions/s "
           "| slowdown vs no live view (median rounds) | CPU ms per decision | CPU vs no live view |")
