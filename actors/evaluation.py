@@ -100,7 +100,7 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
     evaluations = evaluated_version = 0
     with contextlib.closing(PandaEnv(sim_config)) as bare, RoleLinks(ctx, qconfig) as links, \
             live_view(config.foxglove_port) as live:
-        env = live.wrap(bare) if live else bare
+        env, on_decision = watched(bare, live)
         follower = links.follower
         policy = ActingPolicy(qconfig.replace(epsilon=0.0), follower)
 
@@ -123,7 +123,7 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
                 record = ctx.run_dir / "eval" if config.record_eval else None
                 first: list[Rollout] = []
                 result = evaluate(env, policy, config, qconfig.cameras, record, ctx.stop, on_first=first.append,
-                                  on_decision=live.show_decision if live else None)
+                                  on_decision=on_decision)
                 if result is None:
                     break  # stopped mid-evaluation
                 if first:
@@ -169,6 +169,12 @@ def live_view(port: int):
     with live:
         log.info("live view for Foxglove at ws://127.0.0.1:%d (Open connection, Foxglove WebSocket)", live.port)
         yield live
+
+
+def watched(env, live):
+    """(env, on_decision) for ``rollout``/``evaluate``: shown on ``live`` (a LiveView) when there is one, else as
+    they are (no decision hook)."""
+    return (live.wrap(env), live.show_decision) if live else (env, None)
 
 
 def write_snapshot(directory: Path, policy: ActingPolicy, first: Rollout, task: str, seed: int, update) -> None:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 
 from actors.config import ActorConfig
-from actors.evaluation import evaluate, live_view
+from actors.evaluation import evaluate, live_view, watched
 from actors.sim.config import SimConfig
 from protocol.policy_file import PolicyFile, PolicyFileError
 from qattention.agent import C2FARM
@@ -89,7 +89,7 @@ def evaluate_in_sim(policy: PolicyFile, sim: SimConfig, actor: ActorConfig,
     fixed = fixed_policy(policy, qconfig)
     torch.set_num_threads(max(1, actor.torch_threads))
     with contextlib.closing(PandaEnv(sim)) as bare, live_view(actor.foxglove_port) as live:
-        env = live.wrap(bare) if live else bare
+        env, on_decision = watched(bare, live)
         outcome = evaluate(env, fixed, actor, qconfig.cameras, None, stop,
-                           on_decision=live.show_decision if live else None)
+                           on_decision=on_decision)
     return None if outcome is None else result_of(outcome, sim.task, fixed)

@@ -26,10 +26,11 @@ import torch
 
 from actors.actor_loop import ActingPolicy, Rollout, episode_seed, rollout, to_episode
 from actors.config import ActorConfig
-from actors.evaluation import EvalResult, append_eval_row, evaluate, live_view, write_snapshot
+from actors.environment import Env
+from actors.evaluation import EvalResult, append_eval_row, evaluate, live_view, watched, write_snapshot
 from actors.robot.config import RobotConfig
 from actors.robot.connect import open_env
-from actors.robot.env import OperatorStopped, RobotEnv
+from actors.robot.env import OperatorStopped
 from actors.robot.operator import FabricOperator
 from actors.role_loop import EpisodeStats, RoleLinks, first_episode_id
 from protocol.messages import WeightsUpdate
@@ -63,7 +64,7 @@ def run(setup: RobotSetup, ctx: RoleContext) -> int:
     with contextlib.ExitStack() as stack:
         arm, channel, env = open_env(robot, task, qconfig.episode_length, ctx.stop, stack, terminal)
         live = stack.enter_context(live_view(config.foxglove_port))
-        env, on_decision = (live.wrap(env), live.show_decision) if live else (env, None)
+        env, on_decision = watched(env, live)
         host = arm.config.host
         links = stack.enter_context(RoleLinks(ctx, qconfig, sends=config))
         fabric_operator = FabricOperator(links.session, ctx.run_id, ctx.instance, channel)
@@ -136,7 +137,7 @@ def training_resumes_until(started: float, ended: float, share: float) -> float:
     return ended + (ended - started) * (1.0 - share) / share
 
 
-def evaluate_here(env: RobotEnv, policy: ActingPolicy, config: ActorConfig, qconfig: QAttentionConfig,
+def evaluate_here(env: Env, policy: ActingPolicy, config: ActorConfig, qconfig: QAttentionConfig,
                   update: WeightsUpdate, ctx: RoleContext,
                   on_decision: Callable[[Observation, ActResult], None] | None = None) -> EvalResult | None:
     """The evaluator's greedy episodes on this arm, appended to ``metrics/eval.csv``; None if stopped part-way.

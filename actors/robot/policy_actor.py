@@ -18,7 +18,7 @@ import threading
 
 import torch
 
-from actors.evaluation import evaluate, live_view
+from actors.evaluation import evaluate, live_view, watched
 from actors.policy_eval import PolicyEvaluation, fixed_policy, result_of
 from actors.robot.actor import RobotSetup
 from actors.robot.connect import open_env
@@ -37,7 +37,7 @@ def run_policy(setup: RobotSetup, policy: PolicyFile, stop: threading.Event) -> 
     with contextlib.ExitStack() as stack:
         _, channel, env = open_env(robot, setup.task, qconfig.episode_length, stop, stack, setup.terminal)
         live = stack.enter_context(live_view(config.foxglove_port))
-        env, on_decision = (live.wrap(env), live.show_decision) if live else (env, None)
+        env, on_decision = watched(env, live)
         if setup.terminal is None and not robot.scripted_operator:
             log.warning("no terminal and no scripted operator: nobody here can say reset done, success or fail "
                         "(episodes wait for them); run it in a terminal")
