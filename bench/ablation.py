@@ -34,6 +34,7 @@ import learning  # bench/learning.py: runs and their seeds
 from learning_curves import Curve, first_reaching, when_reached
 
 GRID_8_8_8 = ("qattention.voxel_size=8", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.075]")
+HEADS_WHOLE = ("qattention.last_translation_td=1.0", "qattention.last_head_margin=1.0")
 
 #: Variant name -> config overrides on top of the preset. Each turns one lever of issue 13.
 LEVERS: dict[str, tuple[str, ...]] = {
@@ -85,6 +86,12 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # lift_lid's ladder entry: the first one with both (its seed 2 swung below 80 % for 30 minutes).
     "lid-entry-untimed-demos-0.5": ("sim.cameras=[front, wrist]", *GRID_8_8_8,
                                     "qattention.time_feature=false", "replay.demo_fraction=0.5"),
+    # Each of the last depth's five heads weighed as a whole, in the TD (translation) and in the demo margin:
+    # put_in_bin's greedy gripper chose "closed" at every demo keyframe, open trailing by a near-constant 0.05.
+    "untimed-demos-0.5-heads-1": ("qattention.time_feature=false", "replay.demo_fraction=0.5",
+                                  *HEADS_WHOLE),
+    "lid-entry-heads-1": ("sim.cameras=[front, wrist]", *GRID_8_8_8, "qattention.time_feature=false",
+                          "replay.demo_fraction=0.5", *HEADS_WHOLE),
 }
 
 

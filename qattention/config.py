@@ -50,6 +50,9 @@ class QAttentionConfig:
     #: off, as the reference
     demo_margin: float = 0.0
     lambda_demo_margin: float = 1.0  #: weight of the demo margin loss beside the TD loss, >= 0
+    #: weight of each of the last depth's five heads' demo margins (translation, 3 rotation axes, gripper). 0.2: the
+    #: five averaged, so the gripper's ranking weighs a fifth of depth 0's; 1.0: each head as much (BENCHMARKS.md)
+    last_head_margin: float = 0.2
     crop_augmentation: bool = True  #: shift the depth>=1 cube centre of demo transitions at label time
     crop_shift: float = 0.75  #: max shift per axis as a fraction of bounds_offset, in [0, 1]
     #: max |yaw| (deg, in [0, 180]) by which each sampled demo row's scene, gripper and action turn about the vertical
@@ -89,8 +92,8 @@ class QAttentionConfig:
             raise ValueError(f"cameras must name at least one camera, each once (got {list(self.cameras)})")
         _range(self, 0, None, "lr", "grad_clip", "reward_scale", open_low=True)
         _range(self, 0, None, "image_crop", "weight_decay", "lambda_trans_qreg", "lambda_rot_qreg",
-               "last_translation_td", "demo_margin", "lambda_demo_margin", "explore_voxel_sigma",
-               "explore_rotation_sigma")
+               "last_translation_td", "demo_margin", "lambda_demo_margin", "last_head_margin",
+               "explore_voxel_sigma", "explore_rotation_sigma")
         _range(self, 0, 1, "tau", open_low=True)
         _range(self, 0, 1, "gamma", "per_alpha", "crop_shift", "epsilon")
         _range(self, 0, 180, "demo_yaw_augmentation")

@@ -78,7 +78,8 @@ def depth_loss(q_trans, q_rg, voxel_index, rot_grip, y, weights, config, is_demo
     """Loss of one depth given its online outputs and labels (voxel [B, 3], rot_grip [B, 4]).
 
     With ``config.demo_margin`` > 0, rows flagged in ``is_demo`` [B] also pay the margin loss of
-    every head (mean over heads, times ``lambda_demo_margin``); priorities stay TD-only.
+    every head (at the last depth each head's times ``last_head_margin``, 1/5 = their mean; all
+    times ``lambda_demo_margin``); priorities stay TD-only.
     """
     b, v = q_trans.shape[0], config.voxel_size
     q_flat = q_trans.reshape(b, -1).float()
@@ -102,8 +103,10 @@ def depth_loss(q_trans, q_rg, voxel_index, rot_grip, y, weights, config, is_demo
         delta = config.last_translation_td * td[:, 0] + td[:, 1:].sum(1) / 5
     margin = torch.zeros_like(delta)
     if config.demo_margin > 0 and is_demo is not None and bool(is_demo.any()):
-        per_head = torch.stack([margin_loss(q, a, config.demo_margin) for q, a in heads], 1).mean(1)
-        margin = per_head * is_demo.float()
+        per_head = torch.stack([margin_loss(q, a, config.demo_margin) for q, a in heads], 1)
+        # at the last depth the mean of five, scaled so the default 0.2 each leaves it exactly the mean
+        per_row = per_head[:, 0] if q_rg is None else per_head.mean(1) * (5 * config.last_head_margin)
+        margin = per_row * is_demo.float()
     loss = ((delta + qreg + config.lambda_demo_margin * margin) * weights).mean()
     return DepthLoss(loss, delta.detach(), qreg.detach(), chosen.detach(), td.detach(), margin.detach())
 

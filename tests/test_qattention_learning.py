@@ -120,6 +120,27 @@ def test_margin_loss_is_zero_once_the_label_leads_by_the_margin():
     torch.testing.assert_close(loss, torch.tensor([0.0, 0.15]))
 
 
+def test_last_head_margin_weighs_each_of_the_last_depths_heads_margins():
+    """At the last depth the five heads' margins are averaged (0.2 each); 1.0 gives each head, the gripper's
+    included, the weight depth 0's one translation margin has. TD and priorities do not change."""
+    from qattention.loss import depth_loss
+
+    torch.manual_seed(0)
+    b, v, bins = 4, 4, 36
+    q_trans, q_rg = torch.randn(b, v, v, v), torch.randn(b, 3 * bins + 2)
+    voxel, rot_grip = torch.randint(0, v, (b, 3)), torch.cat([torch.randint(0, bins, (b, 3)), torch.ones(b, 1)], 1)
+    y, weights, is_demo = torch.rand(b), torch.ones(b), torch.tensor([True, True, False, True])
+
+    def loss(weight):
+        cfg = QAttentionConfig(voxel_size=v, rotation_resolution=10, demo_margin=0.1, last_head_margin=weight)
+        return depth_loss(q_trans, q_rg, voxel, rot_grip.long(), y, weights, cfg, is_demo)
+
+    mean, whole = loss(0.2), loss(1.0)
+    torch.testing.assert_close(whole.margin, 5 * mean.margin)
+    assert whole.margin[2] == 0 and (whole.margin[is_demo] > 0).all()  # agent rows pay none
+    torch.testing.assert_close(whole.delta, mean.delta)
+
+
 def test_demo_margin_teaches_the_demos_choices_without_any_reward():
     """Zero reward everywhere: the TD loss alone has nothing to rank the choices by, the margin does."""
     b = batch(4, seed=1, demos=True)
