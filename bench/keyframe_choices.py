@@ -1,0 +1,109 @@
+"""What a trained run chooses at the demos' own keyframes: the first thing to read when its greedy gripper never changes.
+
+    python bench/keyframe_choices.py runs/<run-id>              # 5 demos of the run's task
+    python bench/keyframe_choices.py runs/<run-id> --demos 10
+
+Loads the run's newest learner checkpoint and config, records ``--demos`` scripted demos of its
+task (seeds from 0, as the run's demos), and at every keyframe state (the demo from its first
+frame, no augmentation) asks the networks two things:
+
+- the gripper head's two Q-values in the last depth's cube around the demo's own next pose
+  (what the update trains): ``open - closed`` and whether the demo's choice leads;
+- the greedy next-best pose from that state: its distance to the demo's next pose and its gripper.
+
+Printed per keyframe index, over the demos. A gripper head that leads with the same choice by
+about the same amount at every keyframe has not learnt the gripper from the scene: a policy
+that never lets go (put_in_bin, stack_wine) or never opens to grasp. Where the greedy pose is
+far from the demo's, the translation is what to look at instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from demo_fit import batch_of, demo_transitions  # noqa: E402  (bench/demo_fit.py)
+
+
+def keyframe_rows(agent, config, rows) -> list[dict]:
+    """Per demo keyframe state: the gripper's Q gap at the labelled cube and the greedy choice."""
+    import torch
+
+    from qattention.cascade import depth_grid, split_rot_grip
+
+    batch = batch_of(rows, config.cameras, config.scene_bounds)
+    agent.nets.eval()
+    with torch.no_grad():
+        _, coords, bounds, labels = agent.labels(batch)
+        last = config.depths - 1
+        centre = coords[:, last - 1] if last > 0 else None
+        _, q_rg = agent.nets[last](depth_grid(batch.obs, config, centre, bounds[:, last]),
+                                   batch.obs.proprioception(config))
+        _, grip = split_rot_grip(q_rg.float(), config.rotation_bins)
+        greedy = agent.act(batch.obs).action
+    out = []
+    for i, row in enumerate(rows):
+        label = int(labels[i, 3])
+        gap = float(grip[i, 1] - grip[i, 0])  # index 1 = open
+        out.append({"label_open": label == 1, "gap": gap, "label_leads": (gap > 0) == (label == 1),
+                    "distance": float(np.linalg.norm(greedy[i, :3] - row[1][:3])),
+                    "greedy_open": bool(greedy[i, 7] > 0.5)})
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_dir", type=Path, help="runs/<run-id> with config.yaml and checkpoints/learner")
+    parser.add_argument("--demos", type=int, default=5, help="scripted demos to read (seeds from 0)")
+    args = parser.parse_args()
+
+    import torch
+
+    from actors.panda_env import PandaEnv
+    from deploy.config import load_config
+    from deploy.roles import network_config
+    from learner.checkpoint import load_latest
+    from qattention.agent import C2FARM
+
+    torch.set_num_threads(1)
+    config = load_config(preset=None, files=(args.run_dir / "config.yaml",))
+    qconfig = network_config(config)
+    state = load_latest(args.run_dir / "checkpoints" / "learner")
+    if state is None:
+        print(f"no complete learner checkpoint under {args.run_dir / 'checkpoints' / 'learner'}")
+        return 1
+    agent = C2FARM(qconfig, device="cpu")
+    agent.load_state_dict(state["agent"])
+    env = PandaEnv(config.sim)
+    try:
+        rows, used = demo_transitions(env, args.demos, every_n=10**9)  # the first frame's episode only
+    finally:
+        env.close()
+    by_index: dict[int, list[dict]] = defaultdict(list)
+    k = 0
+    for row, r in zip(rows, keyframe_rows(agent, qconfig, rows)):
+        by_index[k].append(r)
+        k = 0 if row[3] else k + 1  # a terminal row ends its demo
+
+    print(f"{config.sim.task}, learner step {state['step']}, demos {used}\n")
+    print("| keyframe | demo's gripper | demo's gripper leads | Q(open) - Q(closed), median (min, max) "
+          "| greedy: distance to the demo's pose (median) | greedy: gripper open |")
+    print("|---|---|---|---|---|---|")
+    for k, rs in sorted(by_index.items()):
+        gaps = [r["gap"] for r in rs]
+        print(f"| {k + 1} | {'open' if rs[0]['label_open'] else 'closed'} | {sum(r['label_leads'] for r in rs)}/{len(rs)} "
+              f"| {statistics.median(gaps):+.3f} ({min(gaps):+.3f}, {max(gaps):+.3f}) "
+              f"| {100 * statistics.median(r['distance'] for r in rs):.1f} cm | {sum(r['greedy_open'] for r in rs)}/{len(rs)} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
