@@ -1,4 +1,4 @@
-"""What a trained run chooses at the demos' own keyframes: the first thing to read when its greedy gripper never changes.
+"""What a trained run chooses at the demos' keyframes: the first thing to read when its greedy gripper never changes.
 
     python bench/keyframe_choices.py runs/<run-id>              # 5 demos of the run's task
     python bench/keyframe_choices.py runs/<run-id> --demos 10
@@ -98,10 +98,12 @@ def main() -> int:
           "| greedy: distance to the demo's pose (median) | greedy: gripper open |")
     print("|---|---|---|---|---|---|")
     for k, rs in sorted(by_index.items()):
-        gaps = [r["gap"] for r in rs]
-        print(f"| {k + 1} | {'open' if rs[0]['label_open'] else 'closed'} | {sum(r['label_leads'] for r in rs)}/{len(rs)} "
-              f"| {statistics.median(gaps):+.3f} ({min(gaps):+.3f}, {max(gaps):+.3f}) "
-              f"| {100 * statistics.median(r['distance'] for r in rs):.1f} cm | {sum(r['greedy_open'] for r in rs)}/{len(rs)} |")
+        gaps, n = [r["gap"] for r in rs], len(rs)
+        label = "open" if rs[0]["label_open"] else "closed"
+        leads, opens = sum(r["label_leads"] for r in rs), sum(r["greedy_open"] for r in rs)
+        distance = 100 * statistics.median(r["distance"] for r in rs)
+        spread = f"{statistics.median(gaps):+.3f} ({min(gaps):+.3f}, {max(gaps):+.3f})"
+        print(f"| {k + 1} | {label} | {leads}/{n} | {spread} | {distance:.1f} cm | {opens}/{n} |")
     return 0
 
 
