@@ -19,6 +19,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from trained_run import load_trained_run  # noqa: E402  (bench/trained_run.py)
 
 
 def main() -> int:
@@ -27,26 +30,15 @@ def main() -> int:
     parser.add_argument("--episodes", type=int, default=40, help="evaluation seeds to look at")
     args = parser.parse_args()
 
-    import torch
-
     from actors.panda_env import PandaEnv
-    from deploy.config import load_config
-    from deploy.roles import network_config
-    from learner.checkpoint import load_latest
-    from qattention.agent import C2FARM
     from qattention.batch import ObservationBatch
 
-    torch.set_num_threads(1)
-    config = load_config(preset=None, files=(args.run_dir / "config.yaml",))
-    qconfig = network_config(config)
-    state = load_latest(args.run_dir / "checkpoints" / "learner")
-    if state is None:
-        print(f"no complete learner checkpoint under {args.run_dir / 'checkpoints' / 'learner'}")
+    run = load_trained_run(args.run_dir)
+    if run is None:
         return 1
-    agent = C2FARM(qconfig, device="cpu")
-    agent.load_state_dict(state["agent"])
+    config, qconfig, agent = run.config, run.qconfig, run.agent
     env = PandaEnv(config.sim)
-    print(f"{config.sim.task}, learner step {state['step']}; pose = [x y z qx qy qz qw open]")
+    print(f"{config.sim.task}, learner step {run.step}; pose = [x y z qx qy qz qw open]")
     distances, unreachable = [], 0
     for seed in range(config.actor.eval_seed, config.actor.eval_seed + args.episodes):
         obs = env.reset(seed=seed)

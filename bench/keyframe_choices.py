@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from demo_fit import batch_of, demo_transitions  # noqa: E402  (bench/demo_fit.py)
+from trained_run import load_trained_run  # noqa: E402  (bench/trained_run.py)
 
 
 def keyframe_rows(agent, config, rows) -> list[dict]:
@@ -65,23 +66,12 @@ def main() -> int:
     parser.add_argument("--demos", type=int, default=5, help="scripted demos to read (seeds from 0)")
     args = parser.parse_args()
 
-    import torch
-
     from actors.panda_env import PandaEnv
-    from deploy.config import load_config
-    from deploy.roles import network_config
-    from learner.checkpoint import load_latest
-    from qattention.agent import C2FARM
 
-    torch.set_num_threads(1)
-    config = load_config(preset=None, files=(args.run_dir / "config.yaml",))
-    qconfig = network_config(config)
-    state = load_latest(args.run_dir / "checkpoints" / "learner")
-    if state is None:
-        print(f"no complete learner checkpoint under {args.run_dir / 'checkpoints' / 'learner'}")
+    run = load_trained_run(args.run_dir)
+    if run is None:
         return 1
-    agent = C2FARM(qconfig, device="cpu")
-    agent.load_state_dict(state["agent"])
+    config, qconfig, agent = run.config, run.qconfig, run.agent
     env = PandaEnv(config.sim)
     try:
         rows, used = demo_transitions(env, args.demos, every_n=10**9)  # the first frame's episode only
@@ -93,7 +83,7 @@ def main() -> int:
         by_index[k].append(r)
         k = 0 if row[3] else k + 1  # a terminal row ends its demo
 
-    print(f"{config.sim.task}, learner step {state['step']}, demos {used}\n")
+    print(f"{config.sim.task}, learner step {run.step}, demos {used}\n")
     print("| keyframe | demo's gripper | demo's gripper leads | Q(open) - Q(closed), median (min, max) "
           "| greedy: distance to the demo's pose (median) | greedy: gripper open |")
     print("|---|---|---|---|---|---|")
