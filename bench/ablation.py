@@ -94,6 +94,10 @@ LEVERS: dict[str, tuple[str, ...]] = {
                           "replay.demo_fraction=0.5", *HEADS_WHOLE),
     # ... and a decision that changes nothing costing 10 % of the value instead of 1 %: at gamma 0.99 keeping the
     # gripper closed above the bin (the same state again) is worth 0.99 of letting go, a gap below the Q noise.
+    # ... or the actors and evaluator acting with a slow average of the weights (put_in_bin's greedy rate swung
+    # between 0 and 55 % from one evaluation to the next under heads-1):
+    "lid-heads-1-acting-0.99": ("sim.cameras=[front, wrist]", *GRID_8_8_8, "qattention.time_feature=false",
+                                "replay.demo_fraction=0.5", *HEADS_WHOLE, "learner.acting_average=0.99"),
     "lid-heads-1-gamma-0.9": ("sim.cameras=[front, wrist]", *GRID_8_8_8, "qattention.time_feature=false",
                               "replay.demo_fraction=0.5", *HEADS_WHOLE, "qattention.gamma=0.9"),
 }
