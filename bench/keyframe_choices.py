@@ -9,7 +9,9 @@ frame, no augmentation) asks the networks two things:
 
 - the gripper head's two Q-values in the last depth's cube around the demo's own next pose
   (what the update trains): ``open - closed`` and whether the demo's choice leads;
-- the greedy next-best pose from that state: its distance to the demo's next pose and its gripper.
+- the greedy next-best pose from that state: its distance to the demo's next pose, the first depth
+  whose voxel differs from the demo's (0: the coarse grid over the whole scene already points
+  elsewhere), whether its rotation bins are the demo's, and its gripper.
 
 Printed per keyframe index, over the demos. A gripper head that leads with the same choice by
 about the same amount at every keyframe has not learnt the gripper from the scene: a policy
@@ -35,28 +37,41 @@ from trained_run import load_trained_run  # noqa: E402  (bench/trained_run.py)
 
 
 def keyframe_rows(agent, config, rows) -> list[dict]:
-    """Per demo keyframe state: the gripper's Q gap at the labelled cube and the greedy choice."""
+    """Per demo keyframe state: the gripper's Q gap at the labelled cube and the greedy choice.
+
+    The labels are the demo's next pose encoded without crop noise, so each depth's cube is the one
+    centred on the demo's own voxel: where the greedy cascade first picks another voxel says which
+    depth sends the pose away (depth 0's 8- or 16-voxel grid over the whole scene, or a finer one).
+    """
     import torch
 
+    from qattention.action_codec import encode_action
     from qattention.cascade import depth_grid, split_rot_grip
+    from qattention.voxelise import child_bounds
 
     batch = batch_of(rows, config.cameras, config.scene_bounds)
     agent.nets.eval()
     with torch.no_grad():
-        _, coords, bounds, labels = agent.labels(batch)
+        scene = batch.obs.bounds(config.scene_bounds)
+        labels = encode_action(batch.action, scene, config)
+        coords = labels.coordinates
         last = config.depths - 1
         centre = coords[:, last - 1] if last > 0 else None
-        _, q_rg = agent.nets[last](depth_grid(batch.obs, config, centre, bounds[:, last]),
-                                   batch.obs.proprioception(config))
+        bounds = scene if last == 0 else child_bounds(centre, config.offset(last))
+        _, q_rg = agent.nets[last](depth_grid(batch.obs, config, centre, bounds), batch.obs.proprioception(config))
         _, grip = split_rot_grip(q_rg.float(), config.rotation_bins)
-        greedy = agent.act(batch.obs).action
+        greedy = agent.act(batch.obs)
+    demo_voxels, demo_rot_grip = labels.voxel_indices.numpy(), labels.rot_grip.numpy()
     out = []
     for i, row in enumerate(rows):
-        label = int(labels[i, 3])
+        label = int(demo_rot_grip[i, 3])
         gap = float(grip[i, 1] - grip[i, 0])  # index 1 = open
+        off = [d for d in range(config.depths) if (greedy.voxel_indices[i, d] != demo_voxels[i, d]).any()]
         out.append({"label_open": label == 1, "gap": gap, "label_leads": (gap > 0) == (label == 1),
-                    "distance": float(np.linalg.norm(greedy[i, :3] - row[1][:3])),
-                    "greedy_open": bool(greedy[i, 7] > 0.5)})
+                    "distance": float(np.linalg.norm(greedy.action[i, :3] - row[1][:3])),
+                    "greedy_open": bool(greedy.action[i, 7] > 0.5),
+                    "first_depth_off": off[0] if off else None,
+                    "rotation_same": bool((greedy.rot_grip_indices[i, :3] == demo_rot_grip[i, :3]).all())})
     return out
 
 
@@ -84,16 +99,21 @@ def main() -> int:
         k = 0 if row[3] else k + 1  # a terminal row ends its demo
 
     print(f"{config.sim.task}, learner step {run.step}, demos {used}\n")
+    depths = ", ".join(f"{d}" for d in range(qconfig.depths))
     print("| keyframe | demo's gripper | demo's gripper leads | Q(open) - Q(closed), median (min, max) "
-          "| greedy: distance to the demo's pose (median) | greedy: gripper open |")
-    print("|---|---|---|---|---|---|")
+          f"| greedy: distance to the demo's pose (median) | greedy: first depth off the demo's voxel ({depths}, none) "
+          "| greedy: rotation bins the demo's | greedy: gripper open |")
+    print("|---|---|---|---|---|---|---|---|")
     for k, rs in sorted(by_index.items()):
         gaps, n = [r["gap"] for r in rs], len(rs)
         label = "open" if rs[0]["label_open"] else "closed"
         leads, opens = sum(r["label_leads"] for r in rs), sum(r["greedy_open"] for r in rs)
         distance = 100 * statistics.median(r["distance"] for r in rs)
         spread = f"{statistics.median(gaps):+.3f} ({min(gaps):+.3f}, {max(gaps):+.3f})"
-        print(f"| {k + 1} | {label} | {leads}/{n} | {spread} | {distance:.1f} cm | {opens}/{n} |")
+        first_off = [sum(r["first_depth_off"] == d for r in rs) for d in (*range(qconfig.depths), None)]
+        rotation = sum(r["rotation_same"] for r in rs)
+        print(f"| {k + 1} | {label} | {leads}/{n} | {spread} | {distance:.1f} cm | {' / '.join(map(str, first_off))} "
+              f"| {rotation}/{n} | {opens}/{n} |")
     return 0
 
 
