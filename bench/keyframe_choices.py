@@ -11,7 +11,8 @@ frame, no augmentation) asks the networks two things:
   (what the update trains): ``open - closed`` and whether the demo's choice leads;
 - the greedy next-best pose from that state: its distance to the demo's next pose, the first depth
   whose voxel differs from the demo's (0: the coarse grid over the whole scene already points
-  elsewhere), whether its rotation bins are the demo's, and its gripper.
+  elsewhere), whether its rotation bins are the demo's, and its gripper;
+- each depth's Q at the demo's own voxel (in the cube the demo's path leads to).
 
 Printed per keyframe index, over the demos. A gripper head that leads with the same choice by
 about the same amount at every keyframe has not learnt the gripper from the scene: a policy
@@ -61,6 +62,7 @@ def keyframe_rows(agent, config, rows) -> list[dict]:
         _, q_rg = agent.nets[last](depth_grid(batch.obs, config, centre, bounds), batch.obs.proprioception(config))
         _, grip = split_rot_grip(q_rg.float(), config.rotation_bins)
         greedy = agent.act(batch.obs)
+        demo_q = demo_voxel_q(agent, config, batch, scene, labels)
     demo_voxels, demo_rot_grip = labels.voxel_indices.numpy(), labels.rot_grip.numpy()
     out = []
     for i, row in enumerate(rows):
@@ -71,8 +73,27 @@ def keyframe_rows(agent, config, rows) -> list[dict]:
                     "distance": float(np.linalg.norm(greedy.action[i, :3] - row[1][:3])),
                     "greedy_open": bool(greedy.action[i, 7] > 0.5),
                     "first_depth_off": off[0] if off else None,
-                    "rotation_same": bool((greedy.rot_grip_indices[i, :3] == demo_rot_grip[i, :3]).all())})
+                    "rotation_same": bool((greedy.rot_grip_indices[i, :3] == demo_rot_grip[i, :3]).all()),
+                    "demo_q": demo_q[i]})
     return out
+
+
+def demo_voxel_q(agent, config, batch, scene, labels) -> list[list[float]]:
+    """Per row, each depth's Q at the demo's voxel in the demo's own cube. A depth that reads near 0 where the
+    others read near 1 has a flat map there: its best voxel is noise (bench/cube_occupancy.py says whether it sees
+    anything at all)."""
+    from qattention.cascade import depth_grid
+    from qattention.voxelise import child_bounds
+
+    per_depth = []
+    rows = range(batch.size)
+    for d in range(config.depths):
+        centre = labels.coordinates[:, d - 1] if d else None
+        bounds = scene if d == 0 else child_bounds(centre, config.offset(d))
+        q, _ = agent.nets[d](depth_grid(batch.obs, config, centre, bounds), batch.obs.proprioception(config))
+        i = labels.voxel_indices[:, d]
+        per_depth.append(q.float()[rows, i[:, 0], i[:, 1], i[:, 2]])
+    return [[float(q[r]) for q in per_depth] for r in rows]
 
 
 def main() -> int:
@@ -102,8 +123,9 @@ def main() -> int:
     depths = ", ".join(f"{d}" for d in range(qconfig.depths))
     print("| keyframe | demo's gripper | demo's gripper leads | Q(open) - Q(closed), median (min, max) "
           f"| greedy: distance to the demo's pose (median) | greedy: first depth off the demo's voxel ({depths}, none) "
-          "| greedy: rotation bins the demo's | greedy: gripper open |")
-    print("|---|---|---|---|---|---|---|---|")
+          f"| greedy: rotation bins the demo's | greedy: gripper open | Q at the demo's voxel per depth ({depths}), "
+          "median |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for k, rs in sorted(by_index.items()):
         gaps, n = [r["gap"] for r in rs], len(rs)
         label = "open" if rs[0]["label_open"] else "closed"
@@ -112,8 +134,10 @@ def main() -> int:
         spread = f"{statistics.median(gaps):+.3f} ({min(gaps):+.3f}, {max(gaps):+.3f})"
         first_off = [sum(r["first_depth_off"] == d for r in rs) for d in (*range(qconfig.depths), None)]
         rotation = sum(r["rotation_same"] for r in rs)
+        demo_q = " / ".join(f"{statistics.median(r['demo_q'][d] for r in rs):.2f}" for d in range(qconfig.depths))
         print(f"| {k + 1} | {label} | {leads}/{n} | {spread} | {distance:.1f} cm | {' / '.join(map(str, first_off))} "
-              f"| {rotation}/{n} | {opens}/{n} |")
+              f"| {rotation}/{n} | {opens}/{n} "
+              f"| {demo_q} |")
     return 0
 
 
