@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections import defaultdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from ablation import LEVERS  # noqa: E402  (bench/ablation.py)
-from demo_fit import batch_of, demo_transitions  # noqa: E402  (bench/demo_fit.py)
+from demo_fit import batch_of, by_keyframe, demo_transitions  # noqa: E402  (bench/demo_fit.py)
 
 #: Grid levers only: each overrides nothing but the cascade's voxel size, depths and cube sizes.
 GRIDS = ("default", "grid-8-8", "grid-8-8-8", "grid-16-16-16")
@@ -36,28 +35,16 @@ def occupied_per_depth(rows, qconfig) -> list[list[int]]:
 
     from qattention.action_codec import encode_action
     from qattention.cascade import depth_grid
-    from qattention.voxelise import child_bounds
 
     batch = batch_of(rows, qconfig.cameras, qconfig.scene_bounds)
     with torch.no_grad():
-        scene = batch.obs.bounds(qconfig.scene_bounds)
-        coords = encode_action(batch.action, scene, qconfig).coordinates
+        labels = encode_action(batch.action, batch.obs.bounds(qconfig.scene_bounds), qconfig)
         counts = []
         for d in range(qconfig.depths):
-            centre = coords[:, d - 1] if d else None
-            bounds = scene if d == 0 else child_bounds(centre, qconfig.offset(d))
-            grid = depth_grid(batch.obs, qconfig, centre, bounds)
+            centre = labels.coordinates[:, d - 1] if d else None
+            grid = depth_grid(batch.obs, qconfig, centre, labels.bounds[:, d])
             counts.append(grid[:, -1].flatten(1).sum(1).long())  # the last channel is occupancy
     return torch.stack(counts, 1).tolist()
-
-
-def by_keyframe(rows, counts) -> dict[int, list[list[int]]]:
-    """The per-row counts grouped by keyframe index within each demo."""
-    out, k = defaultdict(list), 0
-    for row, c in zip(rows, counts):
-        out[k].append(c)
-        k = 0 if row[3] else k + 1  # a terminal row ends its demo
-    return out
 
 
 def main() -> int:

@@ -17,6 +17,7 @@ import argparse
 import statistics
 import sys
 import time
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,15 @@ def demo_transitions(env, count: int, every_n: int):
         if len(used) == count:
             break
     return rows, used
+
+
+def by_keyframe(rows, values) -> dict[int, list]:
+    """``values`` (one per row of ``demo_transitions(..., every_n=10**9)``) grouped by keyframe index in their demo."""
+    out, k = defaultdict(list), 0
+    for row, value in zip(rows, values):
+        out[k].append(value)
+        k = 0 if row[3] else k + 1  # a terminal row ends its demo
+    return out
 
 
 def keyframe_actions(env, seed: int) -> list[np.ndarray]:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -33,36 +32,39 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from demo_fit import batch_of, demo_transitions  # noqa: E402  (bench/demo_fit.py)
+from demo_fit import batch_of, by_keyframe, demo_transitions  # noqa: E402  (bench/demo_fit.py)
 from trained_run import load_trained_run  # noqa: E402  (bench/trained_run.py)
 
 
 def keyframe_rows(agent, config, rows) -> list[dict]:
-    """Per demo keyframe state: the gripper's Q gap at the labelled cube and the greedy choice.
+    """Per demo keyframe state: each depth's Q at the demo's voxel, the gripper's Q gap, and the greedy choice.
 
     The labels are the demo's next pose encoded without crop noise, so each depth's cube is the one
     centred on the demo's own voxel: where the greedy cascade first picks another voxel says which
     depth sends the pose away (depth 0's 8- or 16-voxel grid over the whole scene, or a finer one).
+    A depth whose Q there reads near 0 where the others read near 1 has a flat map: its best voxel
+    is noise (bench/cube_occupancy.py says whether it sees anything at all).
     """
     import torch
 
     from qattention.action_codec import encode_action
     from qattention.cascade import depth_grid, split_rot_grip
-    from qattention.voxelise import child_bounds
 
     batch = batch_of(rows, config.cameras, config.scene_bounds)
+    every = torch.arange(batch.size)
     agent.nets.eval()
     with torch.no_grad():
-        scene = batch.obs.bounds(config.scene_bounds)
-        labels = encode_action(batch.action, scene, config)
-        coords = labels.coordinates
-        last = config.depths - 1
-        centre = coords[:, last - 1] if last > 0 else None
-        bounds = scene if last == 0 else child_bounds(centre, config.offset(last))
-        _, q_rg = agent.nets[last](depth_grid(batch.obs, config, centre, bounds), batch.obs.proprioception(config))
-        _, grip = split_rot_grip(q_rg.float(), config.rotation_bins)
+        labels = encode_action(batch.action, batch.obs.bounds(config.scene_bounds), config)
+        demo_q = []
+        for d in range(config.depths):
+            centre = labels.coordinates[:, d - 1] if d else None
+            q, q_rg = agent.nets[d](depth_grid(batch.obs, config, centre, labels.bounds[:, d]),
+                                    batch.obs.proprioception(config))
+            i = labels.voxel_indices[:, d]
+            demo_q.append(q.float()[every, i[:, 0], i[:, 1], i[:, 2]])
+        _, grip = split_rot_grip(q_rg.float(), config.rotation_bins)  # the last depth's, as the update trains it
         greedy = agent.act(batch.obs)
-        demo_q = demo_voxel_q(agent, config, batch, scene, labels)
+    demo_q = torch.stack(demo_q, 1).tolist()
     demo_voxels, demo_rot_grip = labels.voxel_indices.numpy(), labels.rot_grip.numpy()
     out = []
     for i, row in enumerate(rows):
@@ -76,24 +78,6 @@ def keyframe_rows(agent, config, rows) -> list[dict]:
                     "rotation_same": bool((greedy.rot_grip_indices[i, :3] == demo_rot_grip[i, :3]).all()),
                     "demo_q": demo_q[i]})
     return out
-
-
-def demo_voxel_q(agent, config, batch, scene, labels) -> list[list[float]]:
-    """Per row, each depth's Q at the demo's voxel in the demo's own cube. A depth that reads near 0 where the
-    others read near 1 has a flat map there: its best voxel is noise (bench/cube_occupancy.py says whether it sees
-    anything at all)."""
-    from qattention.cascade import depth_grid
-    from qattention.voxelise import child_bounds
-
-    per_depth = []
-    rows = range(batch.size)
-    for d in range(config.depths):
-        centre = labels.coordinates[:, d - 1] if d else None
-        bounds = scene if d == 0 else child_bounds(centre, config.offset(d))
-        q, _ = agent.nets[d](depth_grid(batch.obs, config, centre, bounds), batch.obs.proprioception(config))
-        i = labels.voxel_indices[:, d]
-        per_depth.append(q.float()[rows, i[:, 0], i[:, 1], i[:, 2]])
-    return [[float(q[r]) for q in per_depth] for r in rows]
 
 
 def main() -> int:
@@ -113,11 +97,7 @@ def main() -> int:
         rows, used = demo_transitions(env, args.demos, every_n=10**9)  # the first frame's episode only
     finally:
         env.close()
-    by_index: dict[int, list[dict]] = defaultdict(list)
-    k = 0
-    for row, r in zip(rows, keyframe_rows(agent, qconfig, rows)):
-        by_index[k].append(r)
-        k = 0 if row[3] else k + 1  # a terminal row ends its demo
+    by_index = by_keyframe(rows, keyframe_rows(agent, qconfig, rows))
 
     print(f"{config.sim.task}, learner step {run.step}, demos {used}\n")
     depths = ", ".join(f"{d}" for d in range(qconfig.depths))
@@ -136,8 +116,7 @@ def main() -> int:
         rotation = sum(r["rotation_same"] for r in rs)
         demo_q = " / ".join(f"{statistics.median(r['demo_q'][d] for r in rs):.2f}" for d in range(qconfig.depths))
         print(f"| {k + 1} | {label} | {leads}/{n} | {spread} | {distance:.1f} cm | {' / '.join(map(str, first_off))} "
-              f"| {rotation}/{n} | {opens}/{n} "
-              f"| {demo_q} |")
+              f"| {rotation}/{n} | {opens}/{n} | {demo_q} |")
     return 0
 
 
