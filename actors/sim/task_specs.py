@@ -30,7 +30,8 @@ TASK_SPECS: dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec("pick_and_lift", 6, revision=2),  # 2: the target is always red (1 drew its colour at random)
     TaskSpec("lift_lid", 6, revision=2),  # 2: the saucepan is always grey (1 drew its colour from four per episode)
     TaskSpec("open_drawer", 6),
-    TaskSpec("put_in_bin", 8, revision=2),  # 2: the demo lets go 13 cm above the bin's floor (1: 20 cm, unseen)
+    TaskSpec("put_in_bin", 8, revision=3),  # 2: the demo lets go 13 cm above the bin's floor (1: 20 cm, unseen);
+    # 3: and approaches the block 5 cm above it (2: 10 cm)
     TaskSpec("stack_wine", 10),
     TaskSpec("put_item_in_drawer", 15),
 )}
