@@ -98,6 +98,12 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # between 0 and 55 % from one evaluation to the next under heads-1):
     "lid-heads-1-acting-0.99": ("sim.cameras=[front, wrist]", *GRID_8_8_8, "qattention.time_feature=false",
                                 "replay.demo_fraction=0.5", *HEADS_WHOLE, "learner.acting_average=0.99"),
+    # The drawer tasks' entry: the front camera looks at the chest's back, so its handles face away from it (at
+    # open_drawer's approach keyframe the last depth's cube held 0-3 occupied voxels from front + wrist). The two
+    # shoulder cameras see the chest's front (20-87 there); the front view adds nothing at the keyframes.
+    "shoulders-heads-1-acting-0.99": ("sim.cameras=[left_shoulder, right_shoulder, wrist]", *GRID_8_8_8,
+                                      "qattention.time_feature=false", "replay.demo_fraction=0.5", *HEADS_WHOLE,
+                                      "learner.acting_average=0.99"),
     "lid-heads-1-gamma-0.9": ("sim.cameras=[front, wrist]", *GRID_8_8_8, "qattention.time_feature=false",
                               "replay.demo_fraction=0.5", *HEADS_WHOLE, "qattention.gamma=0.9"),
 }

@@ -45,6 +45,12 @@ def handle_position(position, yaw: float, k: int, opened: float = 0.0) -> np.nda
 APPROACH_PITCH = 0.72 * np.pi
 
 
+#: How far in front of the handle the demos' approach keyframe stops, along the chest's -x. At 10 cm (revision 1
+#: of the drawer tasks) the handle lay outside the last depth's 15 cm cube and the cascade chose that pose blind
+#: (bench/cube_occupancy.py: 0 occupied voxels there at (8,8,8)).
+APPROACH_DISTANCE = 0.05
+
+
 def handle_grasp_quaternion(yaw: float) -> np.ndarray:
     """Fingers pointing into the chest front (+x of the chest, tilted down), closing across the vertical bar."""
     q_yaw = p.getQuaternionFromEuler((0.0, 0.0, yaw))

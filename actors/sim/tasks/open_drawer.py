@@ -33,7 +33,8 @@ class OpenDrawer(Task):
         k, q = self.variation, chest.handle_grasp_quaternion(self.yaw)
         h = chest.handle_position(self.position, self.yaw, k)
         back = yaw_rotate(self.yaw, (-1.0, 0.0, 0.0))
-        return [waypoint(h + 0.1 * back, q, 1.0), waypoint(h, q, 0.0), waypoint(h + 0.2 * back, q, 0.0, linear=True)]
+        return [waypoint(h + chest.APPROACH_DISTANCE * back, q, 1.0), waypoint(h, q, 0.0),
+                waypoint(h + 0.2 * back, q, 0.0, linear=True)]
 
     def success(self):
         return self.joint_position("chest", chest.drawer_link(self.variation)) > OPENED

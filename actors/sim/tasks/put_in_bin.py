@@ -56,8 +56,8 @@ class PutInBin(Task):
         pos, _ = self.pose_of("rubbish")
         q = top_down(self.yaw)
         above_bin = self.bin + (0, 0, RELEASE_HEIGHT)
-        return [waypoint(pos + (0, 0, PRE_GRASP_HEIGHT), q, 1.0), waypoint(pos, q, 0.0), waypoint(pos + (0, 0, 0.2), q, 0.0),
-                waypoint(above_bin, q, 0.0), waypoint(above_bin, q, 1.0)]
+        return [waypoint(pos + (0, 0, PRE_GRASP_HEIGHT), q, 1.0), waypoint(pos, q, 0.0),
+                waypoint(pos + (0, 0, 0.2), q, 0.0), waypoint(above_bin, q, 0.0), waypoint(above_bin, q, 1.0)]
 
     def success(self):
         pos, _ = self.pose_of("rubbish")

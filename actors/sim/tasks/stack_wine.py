@@ -16,6 +16,10 @@ RAIL_GAP, RAIL_H, RAIL_LEN = 0.025, 0.04, 0.2  #: rail inner half gap, height, l
 GRIP_BELOW_TOP = 0.025  #: grasp point below the bottle top, on the neck
 #: bottle centre (body cylinder) distance from the grasp point along the bottle axis
 CENTRE_FROM_GRIP = BODY_H / 2 + NECK_H - GRIP_BELOW_TOP
+#: Height of the approach over the grasp and of the turn over the cradle. Revision 1 used 8 and 15 cm: at the
+#: turn the second and last depths' cubes held no point of the rack (0-29 and 0 occupied voxels at (8,8,8),
+#: bench/cube_occupancy.py), so where over the rack to turn was chosen blind.
+ABOVE = 0.05
 
 
 class StackWine(Task):
@@ -54,8 +58,8 @@ class StackWine(Task):
         flat = horizontal(self.rack_yaw)
         axis = yaw_rotate(self.rack_yaw, (1.0, 0.0, 0.0))
         place = self.rack - CENTRE_FROM_GRIP * axis + (0, 0, RAIL_H + 0.03)
-        return [waypoint(grip + (0, 0, 0.08), down, 1.0), waypoint(grip, down, 0.0),
-                waypoint(grip + (0, 0, 0.2), down, 0.0), waypoint(place + (0, 0, 0.15), flat, 0.0),
+        return [waypoint(grip + (0, 0, ABOVE), down, 1.0), waypoint(grip, down, 0.0),
+                waypoint(grip + (0, 0, 0.2), down, 0.0), waypoint(place + (0, 0, ABOVE), flat, 0.0),
                 waypoint(place, flat, 1.0)]
 
     def success(self):
