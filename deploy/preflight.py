@@ -13,6 +13,7 @@ import tempfile
 from pathlib import Path
 
 from deploy.endpoints import tcp_endpoints
+from qattention.config import QAttentionConfig
 
 #: Roles that build a simulated task (and so need a known task and cameras).
 SIM_ROLES = frozenset({"actor", "eval", "demo_source"})
@@ -32,9 +33,12 @@ def problems(config, roles: list[str], instance: str | None = None) -> list[str]
 
         if config.sim.task not in TASKS:
             found.append(f"sim.task: unknown task {config.sim.task!r}; choose from {', '.join(TASKS)}")
-    missing = [c for c in config.qattention.cameras if c not in config.sim.cameras]
-    if missing and SIM_ROLES & set(roles):
-        found.append(f"qattention.cameras: {missing} are not rendered; sim.cameras is {list(config.sim.cameras)}")
+    # Every role fuses sim.cameras (deploy.roles.network_config): a qattention.cameras of its own would be
+    # silently replaced, so one that is neither the default nor sim's is refused rather than ignored.
+    cameras = tuple(config.qattention.cameras)
+    if cameras not in (QAttentionConfig().cameras, tuple(config.sim.cameras)):
+        found.append(f"qattention.cameras: {list(cameras)} is not used, every role fuses sim.cameras "
+                     f"({list(config.sim.cameras)}); set sim.cameras instead")
     if "router" in roles:
         for host, port in tcp_endpoints(config.fabric.listen):
             found += _port_free(host, port, "fabric.listen (the Zenoh router)")
