@@ -15,10 +15,10 @@ from actors.sim.tasks.drawer_chest import LEGS
 
 HALF = 0.02
 OPENED = 0.2
-#: Height of the free-air keyframes over what they lead to (the pulled handle, the block, the drawer's inside).
-#: Revision 1 used 10-15 cm, where the last depth's 15 cm cube (and at the carry the second depth's) held no
-#: point of the handle, block or drawer: the cascade chose those poses blind (bench/cube_occupancy.py).
-ABOVE = 0.05
+#: The free-air keyframes stay 10-15 cm from what they lead to, where the last depth's cube holds no point of it
+#: (bench/cube_occupancy.py). Lowering them to 5 cm (as open_drawer, put_in_bin and stack_wine do) dropped the
+#: scripted demos to 8 of 10 (bench/keyframes_executed.py), so it waits for a check of why.
+APPROACH = 0.1
 
 
 class PutItemInDrawer(Task):
@@ -53,10 +53,10 @@ class PutItemInDrawer(Task):
         qb = top_down(self.block_yaw)
         inside = chest.interior_centre(self.position, self.yaw, k, OPENED) + (0, 0, HALF + 0.03)
         qd = top_down(self.yaw)  # the hand's long side parallel to the chest front: it stays clear of the carcass
-        return [waypoint(h + chest.APPROACH_DISTANCE * back, qh, 1.0), waypoint(h, qh, 0.0),
-                waypoint(pulled, qh, 1.0, linear=True), waypoint(pulled + (0, 0, ABOVE), qh, 1.0),
-                waypoint(pos + (0, 0, ABOVE), qb, 1.0), waypoint(pos, qb, 0.0), waypoint(pos + (0, 0, 0.25), qb, 0.0),
-                waypoint(inside + (0, 0, ABOVE), qd, 0.0), waypoint(inside, qd, 1.0)]
+        return [waypoint(h + APPROACH * back, qh, 1.0), waypoint(h, qh, 0.0),
+                waypoint(pulled, qh, 1.0, linear=True), waypoint(pulled + (0, 0, 0.1), qh, 1.0),
+                waypoint(pos + (0, 0, 0.1), qb, 1.0), waypoint(pos, qb, 0.0), waypoint(pos + (0, 0, 0.25), qb, 0.0),
+                waypoint(inside + (0, 0, 0.15), qd, 0.0), waypoint(inside, qd, 1.0)]
 
     def success(self):
         pos, _ = self.pose_of("block")
