@@ -5,7 +5,7 @@ import numpy as np
 from actors.control.collision import CollisionWorld
 from actors.control.ik import IKSolver, quaternion_angle
 from actors.control.limits import MAX_VELOCITY
-from actors.control.planner import MotionPlanner, planner_class, segment_is_free
+from actors.control.planner import MotionPlanner, cpu_budget, planner_class, segment_is_free
 from actors.control.trajectory import parameterise
 from actors.sim import shapes
 from actors.sim.scene import HOME
@@ -38,6 +38,18 @@ def test_planner_goes_round_a_wall():
     for x, y in zip(plan.path[:-1], plan.path[1:]):
         assert segment_is_free(world, x, y, resolution=0.01)
     world.close()
+
+
+def test_the_planning_budget_is_cpu_time_so_a_starved_actor_keeps_its_whole_budget():
+    """Waiting for a core (here: sleeping) spends no budget; planning work does."""
+    import time
+    budget = cpu_budget(0.05)
+    time.sleep(0.2)  # four budgets of wall-clock time with no CPU spent
+    assert not budget()
+    spins = 0
+    while not budget():  # busy work ends it
+        spins += 1
+    assert spins > 0
 
 
 def test_sbl_falls_back_to_lbkpiece():

@@ -44,8 +44,8 @@ class ControlConfig:
     """How poses are turned into joint motion."""
 
     planner: str = "RRTConnect"  #: OMPL planner name
-    planning_time: float = 1.0  #: OMPL solve budget, seconds
-    simplify_time: float = 0.1  #: path simplification budget, seconds
+    planning_time: float = 1.0  #: OMPL solve budget, CPU seconds of this process
+    simplify_time: float = 0.1  #: path simplification budget, CPU seconds
     velocity_scale: float = 0.5  #: fraction of the Panda velocity limits
     acceleration_scale: float = 0.5  #: fraction of the Panda acceleration and jerk limits
     control_hz: int = 20  #: joint-controller rate; one control step = physics_hz / control_hz physics steps

@@ -28,8 +28,8 @@ class SimConfig:
     unreachable_reward: float = 0.0  #: reward when a pose is unreachable (0 as the reference, -1 as the paper)
     #: OMPL geometric planner: RRTConnect, LBKPIECE1, BKPIECE1, KPIECE1, PRM, RRT or SBL (falls back to LBKPIECE1)
     planner: str = "RRTConnect"
-    planning_time: float = 1.0  #: OMPL solve budget per pose, seconds, > 0
-    simplify_time: float = 0.1  #: OMPL path-simplification budget, seconds, >= 0
+    planning_time: float = 1.0  #: OMPL solve budget per pose, CPU seconds of the actor, > 0
+    simplify_time: float = 0.1  #: OMPL path-simplification budget, CPU seconds, >= 0
     velocity_scale: float = 0.5  #: fraction of the Panda's joint velocity limits used by Ruckig, in (0, 1]
     acceleration_scale: float = 0.5  #: fraction of the Panda's acceleration and jerk limits used by Ruckig, in (0, 1]
     fov_deg: float = 60.0  #: vertical field of view of the fixed cameras, degrees, in (0, 180)
