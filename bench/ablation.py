@@ -108,6 +108,23 @@ LEVERS: dict[str, tuple[str, ...]] = {
                               "replay.demo_fraction=0.5", *HEADS_WHOLE, "qattention.gamma=0.9"),
 }
 
+#: The paper's depth and voxel-size study on the take-lid and rubbish-in-bin tasks, run on the entries those
+#: rungs learn with (lift_lid's, put_in_bin's) with only the grid changed: ``lid-grid-16-16`` ...
+#: ``release-grid-16-16-16``. Each grid spells out all three fields, so none inherits the entry's (8,8,8).
+GRIDS: dict[str, tuple[str, ...]] = {
+    "16-16": ("qattention.voxel_size=16", "qattention.depths=2", "qattention.bounds_offset=0.15"),  # the paper's
+    "8-8": ("qattention.voxel_size=8", "qattention.depths=2", "qattention.bounds_offset=0.15"),
+    "8-8-8": GRID_8_8_8,  # the entries' own
+    "16-16-16": ("qattention.voxel_size=16", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.0375]"),
+}
+ENTRY_LEVERS = {  # each entry without its grid
+    "lid": ("sim.cameras=[front, wrist]", "qattention.time_feature=false", "replay.demo_fraction=0.5"),
+    "release": ("sim.cameras=[front, wrist]", "qattention.time_feature=false", "replay.demo_fraction=0.5",
+                *HEADS_WHOLE, "learner.acting_average=0.99"),
+}
+LEVERS.update({f"{entry}-grid-{grid}": (*levers, *GRIDS[grid])
+               for entry, levers in ENTRY_LEVERS.items() for grid in GRIDS})
+
 
 def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str]:
     """bench/learning.py's arguments for one seed of one variant (the tag names the variant)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import run_budget  # bench/run_budget.py
@@ -29,6 +30,18 @@ def test_every_lever_is_a_config_the_run_accepts(variant):
     if variant == "base":  # the reference's algorithm: no demo share, one-step, no top-K, no margin
         assert (config.replay.demo_fraction, config.replay.n_step, config.actor.reachable_top_k,
                 config.qattention.demo_margin) == (0.0, 1, 0, 0.0)
+
+
+def test_the_grid_study_changes_only_the_grid_of_each_entry():
+    """lid-grid-8-8-8 is lift_lid's entry itself, release-grid-8-8-8 put_in_bin's; the other grids differ
+    from them in the three grid fields alone."""
+    assert set(ablation.LEVERS["lid-grid-8-8-8"]) == set(ablation.LEVERS["lid-entry-untimed-demos-0.5"])
+    assert set(ablation.LEVERS["release-grid-8-8-8"]) == set(ablation.LEVERS["lid-heads-1-acting-0.99"])
+    for entry in ("lid", "release"):
+        for grid in ("16-16", "8-8", "16-16-16"):
+            changed = set(ablation.LEVERS[f"{entry}-grid-{grid}"]) ^ set(ablation.LEVERS[f"{entry}-grid-8-8-8"])
+            assert {item.split("=")[0] for item in changed} <= {"qattention.voxel_size", "qattention.depths",
+                                                                 "qattention.bounds_offset"}
 
 
 def test_the_table_times_each_seed_and_heads_with_the_slowest():
@@ -86,7 +99,10 @@ def test_each_variants_aggregate_holds_every_seed_of_it(tmp_path, monkeypatch):
         (run_dir / "metrics" / "eval.csv").write_text("\n".join(rows) + "\n")
     run_budget.save_budget(runs / "learn-push_button-cpu-small-default-s1",
                                   run_budget.Budget([[0.0, 180.0]], held_rate=0.9))
-    monkeypatch.setattr(ablation.subprocess, "run", lambda *a, **k: type("Done", (), {"returncode": 0})())
+    # The runs are already on disk: ablation's own subprocess.run (only its: matplotlib's first import
+    # runs fc-list through the real one) reports each as done.
+    done = SimpleNamespace(run=lambda *a, **k: SimpleNamespace(returncode=0))
+    monkeypatch.setattr(ablation, "subprocess", done)
     argv = ["--task", "push_button", "--variants", "default", "--seeds", "2", "--stop-at", "0.9",
             "--stop-held", "2", "--runs-dir", str(runs), "--results-dir", str(results)]
     assert ablation.main(argv) == 0
