@@ -33,7 +33,7 @@ TASK_SPECS: dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec("put_in_bin", 8, revision=3),  # 2: the demo lets go 13 cm above the bin's floor (1: 20 cm, unseen);
     # 3: and approaches the block 5 cm above it (2: 10 cm)
     TaskSpec("stack_wine", 10, revision=2),  # 2: approach and turn 5 cm above grasp and cradle (1: 8, 15)
-    TaskSpec("put_item_in_drawer", 15),
+    TaskSpec("put_item_in_drawer", 15, revision=2),  # 2: the block's approach 5 cm above it (1: 10 cm)
 )}
 TASKS: tuple[str, ...] = tuple(TASK_SPECS)
 #: The task ``sim.task`` names unless a preset or the command line says otherwise.
