@@ -11,7 +11,8 @@ frame, no augmentation) asks the networks two things:
   (what the update trains): ``open - closed`` and whether the demo's choice leads;
 - the greedy next-best pose from that state: its distance to the demo's next pose, the first depth
   whose voxel differs from the demo's (0: the coarse grid over the whole scene already points
-  elsewhere), whether its rotation bins are the demo's, and its gripper;
+  elsewhere), whether its rotation bins are the demo's and how far its rotation is from the demo's
+  (the bins' own rounding, up to half a bin per axis, included), and its gripper;
 - each depth's Q at the demo's own voxel (in the cube the demo's path leads to).
 
 Printed per keyframe index, over the demos. A gripper head that leads with the same choice by
@@ -34,6 +35,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from demo_fit import batch_of, by_keyframe, demo_transitions  # noqa: E402  (bench/demo_fit.py)
 from trained_run import load_trained_run  # noqa: E402  (bench/trained_run.py)
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two orientations given as quaternions (either sign), in degrees."""
+    dot = abs(float(np.dot(a / np.linalg.norm(a), b / np.linalg.norm(b))))
+    return float(np.degrees(2 * np.arccos(min(dot, 1.0))))
 
 
 def keyframe_rows(agent, config, rows) -> list[dict]:
@@ -76,6 +83,7 @@ def keyframe_rows(agent, config, rows) -> list[dict]:
                     "greedy_open": bool(greedy.action[i, 7] > 0.5),
                     "first_depth_off": off[0] if off else None,
                     "rotation_same": bool((greedy.rot_grip_indices[i, :3] == demo_rot_grip[i, :3]).all()),
+                    "rotation_deg": angle_deg(np.asarray(greedy.action[i, 3:7]), np.asarray(row[1][3:7])),
                     "demo_q": demo_q[i]})
     return out
 
@@ -103,9 +111,10 @@ def main() -> int:
     depths = ", ".join(f"{d}" for d in range(qconfig.depths))
     print("| keyframe | demo's gripper | demo's gripper leads | Q(open) - Q(closed), median (min, max) "
           f"| greedy: distance to the demo's pose (median) | greedy: first depth off the demo's voxel ({depths}, none) "
-          f"| greedy: rotation bins the demo's | greedy: gripper open | Q at the demo's voxel per depth ({depths}), "
+          "| greedy: rotation bins the demo's | greedy: rotation off the demo's, median (max) "
+          f"| greedy: gripper open | Q at the demo's voxel per depth ({depths}), "
           "median |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for k, rs in sorted(by_index.items()):
         gaps, n = [r["gap"] for r in rs], len(rs)
         label = "open" if rs[0]["label_open"] else "closed"
@@ -114,9 +123,10 @@ def main() -> int:
         spread = f"{statistics.median(gaps):+.3f} ({min(gaps):+.3f}, {max(gaps):+.3f})"
         first_off = [sum(r["first_depth_off"] == d for r in rs) for d in (*range(qconfig.depths), None)]
         rotation = sum(r["rotation_same"] for r in rs)
+        degrees = [r["rotation_deg"] for r in rs]
         demo_q = " / ".join(f"{statistics.median(r['demo_q'][d] for r in rs):.2f}" for d in range(qconfig.depths))
         print(f"| {k + 1} | {label} | {leads}/{n} | {spread} | {distance:.1f} cm | {' / '.join(map(str, first_off))} "
-              f"| {rotation}/{n} | {opens}/{n} | {demo_q} |")
+              f"| {rotation}/{n} | {statistics.median(degrees):.1f}° ({max(degrees):.1f}°) | {opens}/{n} | {demo_q} |")
     return 0
 
 
