@@ -1,4 +1,4 @@
-"""L4 open_drawer: pull one of three drawers (the variation) out by 15 cm, approaching horizontally."""
+"""L4 open_drawer: pull the bottom drawer (RLBench's variation 0) out by 15 cm, approaching horizontally."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 
 from actors.sim.tasks import drawer_chest as chest
 from actors.sim.tasks.base import Task, waypoint, yaw_rotate
-from actors.sim.tasks.drawer_chest import LEGS
+from actors.sim.tasks.drawer_chest import LEGS, VARIATION
 
 OPENED = 0.15
 
@@ -16,7 +16,7 @@ class OpenDrawer(Task):
     obstacles = ("chest",)
 
     def sample(self, rng):
-        self.variation = int(rng.integers(3))
+        self.variation = VARIATION
         self.yaw = rng.uniform(-np.pi / 8, np.pi / 8)
         self.position = np.array([rng.uniform(0.8, 0.85), rng.uniform(-0.15, 0.15), LEGS])
 

@@ -1,4 +1,5 @@
-"""L7 put_item_in_drawer: open a drawer, then pick the block beside the chest and drop it inside.
+"""L7 put_item_in_drawer: open the bottom drawer (RLBench's variation 0), then pick the block beside the chest and
+drop it inside.
 
 Long horizon (8 keyframes), and once the block is in the drawer the front camera barely sees it.
 """
@@ -11,7 +12,7 @@ from actors.sim import shapes
 from actors.sim.bullet import p
 from actors.sim.tasks import drawer_chest as chest
 from actors.sim.tasks.base import Task, top_down, waypoint, yaw_rotate
-from actors.sim.tasks.drawer_chest import LEGS
+from actors.sim.tasks.drawer_chest import LEGS, VARIATION
 
 HALF = 0.02
 OPENED = 0.2
@@ -33,7 +34,7 @@ class PutItemInDrawer(Task):
     obstacles = ("chest",)
 
     def sample(self, rng):
-        self.variation = int(rng.integers(3))
+        self.variation = VARIATION
         self.yaw = rng.uniform(-np.pi / 8, np.pi / 8)
         side = rng.choice([-1.0, 1.0])
         self.position = np.array([rng.uniform(0.8, 0.85), side * rng.uniform(0.08, 0.14), LEGS])
