@@ -2,9 +2,9 @@
 tries a linear path first), otherwise an OMPL geometric planner, then path simplification.
 
 Budgets are CPU seconds of the actor's own process, not wall-clock seconds: on a 2-core machine
-shared with a learner, a wall-clock second can hold a third of a second of planning, and the same
-pose then failed `planning_failed` on 3 of 10 demo seeds that an idle machine solved 10/10. Counting
-CPU time makes what is reachable independent of the machine's load (and so of the run beside it).
+shared with a learner, a process at nice 19 got about half a core (half a second of planning per
+wall-clock second), and scripted demos then failed `planning_failed` on 3 of 10 seeds that an idle
+machine solved 10/10. Counting CPU time makes what is reachable independent of the machine's load.
 
 OMPL 2.0.1's wheel has no SBL (the paper's planner); "SBL" falls back to its lazy bi-directional
 cousin LBKPIECE1. RRTConnect is the default because it measured fastest (bench/bench_sim.py).
