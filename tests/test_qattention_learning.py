@@ -146,10 +146,13 @@ def test_demo_margin_teaches_the_demos_choices_without_any_reward():
     b = batch(4, seed=1, demos=True)
     b.reward[:] = 0.0
 
+    # At the suite's lr of 3e-3 the last depth's hits swing between 1 and 4 of 4 from one update to the next
+    # (Adam on one fixed batch), and where they stand after a fixed count differed between CPUs; at 1e-3 they
+    # climb steadily and hold 4 of 4 from about 175 updates on batch seeds 0 and 1, 3 of 4 on seed 2.
     def trained(margin):
         torch.manual_seed(0)
-        agent = C2FARM(SMALL.replace(crop_augmentation=False, demo_margin=margin, bf16=False), seed=0)
-        for _ in range(100):
+        agent = C2FARM(SMALL.replace(crop_augmentation=False, demo_margin=margin, bf16=False, lr=1e-3), seed=0)
+        for _ in range(250):
             agent.update(b)
         voxels, _, _, rot_grip = agent.labels(b)
         result = agent.act(b.obs)
