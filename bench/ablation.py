@@ -108,8 +108,8 @@ LEVERS: dict[str, tuple[str, ...]] = {
     # (the handle's approach, the pull, the lift off the handle, the block's approach), so without it the states
     # after the pull and after the lift read alike but for the arm in the images; at learner step 2,492 of its
     # first ladder seed the greedy pose from the second was the lift again in 2 of 3 demos (40 cm off the block).
-    "shoulders-timed-heads-1-acting-0.99": ("sim.cameras=[left_shoulder, right_shoulder, wrist]", *GRID_8_8_8,
-                                            "replay.demo_fraction=0.5", *HEADS_WHOLE, "learner.acting_average=0.99"),
+    "drawer-entry-timed": ("sim.cameras=[left_shoulder, right_shoulder, wrist]", *GRID_8_8_8,
+                           "replay.demo_fraction=0.5", *HEADS_WHOLE, "learner.acting_average=0.99"),
     "lid-heads-1-gamma-0.9": ("sim.cameras=[front, wrist]", *GRID_8_8_8, "qattention.time_feature=false",
                               "replay.demo_fraction=0.5", *HEADS_WHOLE, "qattention.gamma=0.9"),
 }
@@ -228,6 +228,9 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     if args.seeds < 1 or args.minutes <= 0:
         parser.error("--seeds must be >= 1 and --minutes > 0")
     learning.check_stop_arguments(parser, args)
+    for variant in args.variants:  # the variant's name is its runs' tag
+        if error := learning.run_id_error(argparse.Namespace(**{**vars(args), "tag": variant, "prefix": None})):
+            parser.error(error)
     return args
 
 

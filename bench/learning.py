@@ -156,6 +156,18 @@ def check_stop_arguments(parser: argparse.ArgumentParser, args: argparse.Namespa
         parser.error("--stop-at must be a success rate in (0, 1] and --stop-held >= 1")
 
 
+def run_id_error(args: argparse.Namespace) -> Optional[str]:
+    """The first seed's run id the launcher would refuse (ids name keys and directories: 1-64 letters, digits,
+    '_', '.', '-'), as one line; None when every one is valid. Checked before the first run starts."""
+    from protocol.keys import MAX_ID_LENGTH, is_valid_id
+
+    bad = [run_id for run_id in seed_run_ids(args).values() if not is_valid_id(run_id)]
+    if not bad:
+        return None
+    return (f"run id {bad[0]!r} ({len(bad[0])} characters) is not a valid id: at most {MAX_ID_LENGTH} letters, "
+            "digits, '_', '.', '-'; shorten the tag")
+
+
 def exit_code(failed: Sequence[str]) -> int:
     """Name the runs whose launcher failed (if any) as the last line; 1 if there were any, else 0."""
     if failed:
@@ -194,6 +206,8 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     parser.add_argument("--summary", action="store_true", help="only print the threshold table")
     args = parser.parse_args(argv)
     check_stop_arguments(parser, args)
+    if error := run_id_error(args):
+        parser.error(error)
     return args
 
 
