@@ -74,6 +74,16 @@ def test_an_unknown_lever_is_one_line_before_anything_runs(capsys):
     assert "--stop-at must be a success rate in (0, 1]" in capsys.readouterr().err
 
 
+def test_a_run_id_the_launcher_would_refuse_is_one_line_before_anything_runs(capsys):
+    """The variant names the run: on the longest task a long name passes 64 characters, which the launcher refuses."""
+    with pytest.raises(SystemExit) as exit_:
+        ablation.parse_args(["--task", "put_item_in_drawer", "--variants", "shoulders-heads-1-acting-0.99"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "'learn-put_item_in_drawer-cpu-small-shoulders-heads-1-acting-0.99-s1'" in err
+    assert "(67 characters) is not a valid id" in err
+    ablation.parse_args(["--task", "put_item_in_drawer", "--variants", "drawer-entry-timed"])  # 52: accepted
+
+
 def test_the_ratio_a_run_achieved_is_read_from_the_learners_log(tmp_path):
     metrics = tmp_path / "run" / "metrics"
     metrics.mkdir(parents=True)
