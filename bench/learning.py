@@ -157,8 +157,8 @@ def check_stop_arguments(parser: argparse.ArgumentParser, args: argparse.Namespa
 
 
 def run_id_error(args: argparse.Namespace) -> Optional[str]:
-    """The first seed's run id the launcher would refuse (ids name keys and directories: 1-64 letters, digits,
-    '_', '.', '-'), as one line; None when every one is valid. Checked before the first run starts."""
+    """The first of the seeds' run ids that the launcher would refuse (ids name keys and directories: 1-64
+    letters, digits, '_', '.', '-'), as one line; None when every one is valid. Checked before any run starts."""
     from protocol.keys import MAX_ID_LENGTH, is_valid_id
 
     bad = [run_id for run_id in seed_run_ids(args).values() if not is_valid_id(run_id)]
