@@ -19,7 +19,7 @@ from typing import Optional, Sequence
 
 from deploy.certs import identity
 from deploy.config_loader import ConfigError
-from deploy.endpoints import free_port, wait_for_router
+from deploy.endpoints import free_port, wait_for_listener
 from deploy.liveness import PARENT_ENV, start_beacon_from_env, watch_parent
 from deploy.parser import ROLE_HELP, build_parser, overrides_from_args, with_robot_role
 
@@ -43,7 +43,7 @@ def run_role(role: str, config, instance: str) -> int:
     stop_on_signals(ctx.stop)
     if os.environ.get(PARENT_ENV):
         watch_parent(int(os.environ[PARENT_ENV]), ctx.stop)
-    if role != "router" and not wait_for_router(config.fabric.connect, config.launch.router_wait_s, ctx.stop):
+    if role != "router" and not wait_for_listener(config.fabric.connect, config.launch.router_wait_s, ctx.stop):
         if ctx.stop.is_set():
             return 0
         log.error("no Zenoh router answers on %s (start `c2farm router` or `c2farm launch` first)",

@@ -102,6 +102,9 @@ class LaunchConfig:
     #: one deadline for the whole stop, seconds, in (0, 60]: SIGTERM all, SIGKILL what is left after it (stop < 10 s)
     shutdown_grace_s: float = 8.0
     router_wait_s: float = 20.0  #: how long roles wait for the Zenoh router to accept connections, seconds, > 0
+    #: how long the launcher waits for the dashboard to serve before starting the roles it watches, seconds,
+    #: >= 0 (0: no wait); a one-shot role such as the demo source may finish before a late dashboard listens
+    dashboard_wait_s: float = 30.0
 
     def __post_init__(self) -> None:
         for role in list(self.roles) + list(self.restart):
@@ -112,7 +115,7 @@ class LaunchConfig:
             raise ValueError(f"instance_prefix must start with a letter or digit and hold only letters, digits, "
                              f"'_', '.', '-' (got {self.instance_prefix!r})")
         at_least(self, 0, "num_actors", "max_restarts", "progress_every_s", "restart_backoff_s",
-                 "restart_backoff_max_s", "liveness_timeout_s", "liveness_grace_s")
+                 "restart_backoff_max_s", "liveness_timeout_s", "liveness_grace_s", "dashboard_wait_s")
         within(self, 0, 60, "shutdown_grace_s", open_low=True)
         above(self, 0, "router_wait_s")
 

@@ -1,4 +1,4 @@
-"""Router endpoints as the launcher and the role CLI both need them: parse, probe, pick a port.
+"""Endpoints as the launcher and the role CLI both need them: parse, probe (the router, the dashboard), pick a port.
 
 Shared by ``deploy/cli.py`` and ``deploy/launch.py`` so neither imports the other.
 """
@@ -27,8 +27,8 @@ def tcp_endpoints(endpoints: Sequence[str]) -> list[tuple[str, int]]:
     return out
 
 
-def wait_for_router(endpoints: Sequence[str], timeout_s: float, stop: threading.Event) -> bool:
-    """Poll until one router endpoint accepts a TCP connection (True) or time runs out."""
+def wait_for_listener(endpoints: Sequence[str], timeout_s: float, stop: threading.Event) -> bool:
+    """Poll until one of ``endpoints`` (the router's, the dashboard's) accepts a TCP connection (True) or time is up."""
     targets = tcp_endpoints(endpoints)
     if not targets:
         return True

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import IO, Optional
 
 from deploy.config import DEFAULT_INSTANCE, ONE_SHOT_ROLES, ROLES, RunConfig
-from deploy.endpoints import tcp_endpoints, wait_for_router
+from deploy.endpoints import loopback, tcp_endpoints, wait_for_listener
 from deploy.liveness import BEACON_ENV, PARENT_ENV, BeaconWatch, beacon_path
 from deploy.progress import progress_line
 
@@ -181,14 +181,35 @@ class Launcher:
             self.start(child)
             if child.role == "router" and not self._router_ready(child):
                 return 1
+            if child.role == "dashboard":
+                self._dashboard_ready(child)
         return 0
+
+    def _dashboard_ready(self, dashboard: Child) -> None:
+        """Wait until the dashboard serves HTTP, so it watches every role from its first status.
+
+        It subscribes to the fabric before it serves; a role it never heard from (the demo source
+        finishes in seconds) would be missing from its page. A dashboard that does not come up in
+        ``launch.dashboard_wait_s`` is reported and the run goes on without waiting: training does
+        not depend on it.
+        """
+        wait_s, port = self.config.launch.dashboard_wait_s, self.config.dashboard.port
+        if wait_s <= 0 or port == 0:  # port 0: it picks its own, there is nothing to probe
+            return
+        endpoint = [loopback(f"tcp/{self.config.dashboard.host}:{port}")]
+        deadline = time.monotonic() + wait_s
+        while dashboard.alive and not self.stop.is_set() and time.monotonic() < deadline:
+            if wait_for_listener(endpoint, 0.5, self.stop):
+                return
+        if not self.stop.is_set():
+            self.say(f"the dashboard did not serve on port {port} within {wait_s:.0f} s; starting the rest anyway")
 
     def _router_ready(self, router: Child) -> bool:
         wait_s = self.config.launch.router_wait_s
         ready = threading.Event()
 
         def probe() -> None:
-            if wait_for_router(self.config.fabric.listen, wait_s, self.stop):
+            if wait_for_listener(self.config.fabric.listen, wait_s, self.stop):
                 ready.set()
 
         thread = threading.Thread(target=probe, daemon=True)

@@ -59,6 +59,37 @@ SMALL_RUN = [
 ]
 
 
+def _our_python_processes() -> dict[int, psutil.Process]:
+    """Every process on this machine running this interpreter (the roles and helpers tests start), but us."""
+    found = {}
+    for p in psutil.process_iter(["cmdline"]):
+        cmdline = p.info["cmdline"] or []
+        if p.pid != os.getpid() and cmdline and cmdline[0] == sys.executable:
+            found[p.pid] = p
+    return found
+
+
+@pytest.fixture(autouse=True, scope="module")
+def no_process_left_behind(request):
+    """Fail the module that leaves a process of ours running (and kill it).
+
+    A leaked role keeps a core busy for the rest of the suite: on a 2-core machine the later
+    real-time tests (franky-sim's 1 kHz loop, launch timings) then fail far from the cause.
+    """
+    before = set(_our_python_processes())
+    yield
+    left = [p for pid, p in _our_python_processes().items() if pid not in before]
+    _, running = psutil.wait_procs(left, timeout=10)
+    running = survivors(running)
+    if running:
+        names = []
+        for p in running:
+            with contextlib.suppress(psutil.Error):
+                names.append(f"{p.pid} {' '.join(p.cmdline()[1:6])}")
+        kill_all([], running)
+        pytest.fail(f"{request.module.__name__} left {len(running)} processes running: {'; '.join(names)}")
+
+
 def get_free_port() -> int:
     """A TCP port that was free a moment ago (bind port 0 and read what the kernel chose)."""
     with socket.socket() as sock:

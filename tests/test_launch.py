@@ -296,3 +296,25 @@ def test_a_stop_kills_a_role_that_ignores_sigterm_at_the_deadline(tmp_path: Path
     assert launcher.run() == 0
     assert out.has("replay did not stop within 1 s; killing it") and out.has("all roles stopped in")
     assert child.proc.returncode == -signal.SIGKILL
+
+
+def test_the_roles_after_the_dashboard_start_once_it_serves(tmp_path: Path):
+    """The dashboard must hear every role from its first status: a demo source may be done in seconds."""
+    from deploy.endpoints import free_port
+
+    port = free_port()
+    slow_dashboard = ("import socket, time; time.sleep(2); s = socket.create_server(('127.0.0.1', %d)); "
+                      "print('serving', flush=True); time.sleep(120)" % port)
+    launcher, out = _ScriptLauncher.make(tmp_path, "", roles=["dashboard", "learner"])
+    launcher.config.dashboard.port = port
+    launcher.command = lambda child: [sys.executable, "-c", slow_dashboard if child.role == "dashboard" else
+                                      "print('up', flush=True); import time; time.sleep(120)"]
+
+    def stop_soon() -> None:
+        wait_for(lambda: out.has("[learner] up"), 60, "the learner to start")
+        launcher.stop.set()
+
+    threading.Thread(target=stop_soon, daemon=True).start()
+    assert launcher.run() == 0
+    started = [line for line in out.lines if "started learner" in line or "[dashboard] serving" in line]
+    assert started[0] == "[dashboard] serving", out.lines

@@ -90,8 +90,12 @@ def test_a_robot_demo_without_operator_keyframes_loads_through_discovery(robot_d
     loaded = load_demo(path)
     assert loaded.keyframes is None
     keyframes = discover_keyframes(loaded.observations)
-    print("waypoint ends", robot_demo.waypoint_frames, "keyframes", keyframes, "frames", len(loaded.observations))
-    for end in robot_demo.waypoint_frames:  # the reference rule finds where every waypoint ends, the via-point's too
-        assert any(abs(k - end) <= 1 for k in keyframes), (end, keyframes)
+    # The reference rule stops where every waypoint ends, the via-point's too. Judged by where the arm
+    # stands, not by frame: it fires once the arm is nearly still, a frame or more before the recorder
+    # has waited out the settling (how many depends on the machine's load).
+    stops = np.array([loaded.observations[k].gripper_pose[:3] for k in keyframes])
+    for waypoint in ((0.5, 0.1, 0.3), (0.5, 0.1, 0.15)):
+        nearest = np.linalg.norm(stops - waypoint, axis=1).min()
+        assert nearest < 0.01, (waypoint, keyframes, stops.round(3).tolist())
     targets = _first_episode_targets(path)
     assert np.array_equal(targets, [keyframe_action(loaded.observations[k]) for k in keyframes])
