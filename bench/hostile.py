@@ -158,10 +158,20 @@ def _zmq(kind: str, n: int, rng: random.Random) -> list[bytes]:
 
 def flood(session: zenoh.Session, run_id: str, zmq_endpoint: str, cap: Captured, rounds: int,
           seed: int = 0, pause_s: float = 0.01) -> Counter:
-    """Send ``rounds`` rounds of every hostile kind; returns messages sent per (target, kind)."""
+    """Send ``rounds`` rounds of every hostile kind; returns messages sent per (target, kind).
+
+    Every put blocks rather than drops when Zenoh's queue is full (as actors put episodes): with
+    the default, a busy machine lost some of the flood on the way, and a receiver cannot count
+    what never reached it.
+    """
     rng = random.Random(seed)
     sent: Counter = Counter()
-    imposter = session.declare_publisher(keys.episodes(run_id, cap.episode.actor_id))
+    block = zenoh.CongestionControl.BLOCK
+    imposter = session.declare_publisher(keys.episodes(run_id, cap.episode.actor_id), congestion_control=block)
+
+    def put(key: str, payload: bytes) -> None:
+        session.put(key, payload, congestion_control=block)
+
     ctx = zmq.Context()
     dealer = ctx.socket(zmq.DEALER)
     dealer.setsockopt(zmq.LINGER, 0)
@@ -174,17 +184,17 @@ def flood(session: zenoh.Session, run_id: str, zmq_endpoint: str, cap: Captured,
                     if kind == "other_actors_id":  # source info names our session, not the actor's
                         imposter.put(payload, source_info=zenoh.SourceInfo(imposter.id, n))
                     else:
-                        session.put(keys.episodes(run_id, actor), payload)
+                        put(keys.episodes(run_id, actor), payload)
                 elif target == "acks":
                     payload = rng.randbytes(rng.randrange(1, 512)) if kind == "random_bytes" else encode(
                         EpisodeAck(cap.episode.actor_id, n, AckStatus.STORED, digest=f"{n:016x}"))
-                    session.put(keys.acks(run_id, cap.episode.actor_id), payload)
+                    put(keys.acks(run_id, cap.episode.actor_id), payload)
                 elif target == "weights":
-                    session.put(keys.weights(run_id), _weights(cap, kind, rng))
+                    put(keys.weights(run_id), _weights(cap, kind, rng))
                 elif target == "status":
                     payload = rng.randbytes(rng.randrange(1, 512)) if kind == "random_bytes" else encode(
                         Status("replay", "replay", run_id, os.getpid(), "flood", time.time()))
-                    session.put(keys.status(run_id, "learner", "learner"), payload)
+                    put(keys.status(run_id, "learner", "learner"), payload)
                 else:
                     dealer.send_multipart(_zmq(kind, n, rng))
                 sent[target, kind] += 1
