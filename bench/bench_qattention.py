@@ -73,35 +73,45 @@ def variants(device_type):
     ]
 
 
+def grid_cost(overrides, device, batch: int) -> dict:
+    """The cpu-small cascade on one grid (``qattention.*`` overrides only): params, act B=1 and update seconds."""
+    from deploy.config_loader import parse_override
+
+    changes: dict = {}
+    for item in overrides:
+        (section, rest), = parse_override(item).items()
+        if section != "qattention":
+            raise ValueError(f"{item!r} is not a grid setting: it sets {section}")
+        changes.update(rest)
+    if isinstance(changes.get("bounds_offset"), list):
+        changes["bounds_offset"] = tuple(changes["bounds_offset"])
+    cfg = cpu_small().replace(**changes)
+    agent = C2FARM(cfg, device, seed=0)
+    data = TransitionBatch.from_arrays(transition_arrays(batch, seed=batch), ("front",), device)
+    obs1 = ObservationBatch.from_arrays(observation_arrays(1, seed=1), ("front",), device)
+    return {
+        "grid": "(" + ",".join([str(cfg.voxel_size)] * cfg.depths) + ")",
+        "offsets": ", ".join(f"{cfg.offset(d):g}" for d in range(1, cfg.depths)),
+        "params": sum(p.numel() for p in agent.nets.parameters()),
+        "act_s": timed(lambda: agent.act(obs1), device, repeats=5),
+        "update_s": timed(lambda: agent.update(data), device, repeats=5, give_up_s=float("inf")),
+    }
+
+
 def time_grids(names, device, batch: int) -> None:
     """Acting latency and update time of the cpu-small cascade for each grid lever of bench/ablation.py."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from ablation import LEVERS
 
-    from deploy.config_loader import parse_override
-
-    data = TransitionBatch.from_arrays(transition_arrays(batch, seed=batch), ("front",), device)
-    obs1 = ObservationBatch.from_arrays(observation_arrays(1, seed=1), ("front",), device)
     print(f"| grid (voxels per depth) | bounds offsets | params | act B=1 (ms) | update B={batch} (s) | updates/s |")
     print("|---|---|---|---|---|---|")
     for name in names:
-        changes: dict = {}
-        for item in LEVERS[name]:
-            (section, rest), = parse_override(item).items()
-            if section != "qattention":
-                raise SystemExit(f"{name} is not a grid lever: it sets {section}")
-            changes.update(rest)
-        if isinstance(changes.get("bounds_offset"), list):
-            changes["bounds_offset"] = tuple(changes["bounds_offset"])
-        cfg = cpu_small().replace(**changes)
-        agent = C2FARM(cfg, device, seed=0)
-        params = sum(p.numel() for p in agent.nets.parameters())
-        act = timed(lambda: agent.act(obs1), device, repeats=5)
-        update = timed(lambda: agent.update(data), device, repeats=5, give_up_s=float("inf"))
-        grid = "(" + ",".join([str(cfg.voxel_size)] * cfg.depths) + ")"
-        offsets = ", ".join(f"{cfg.offset(d):g}" for d in range(1, cfg.depths))
-        print(f"| {grid} ({name}) | {offsets} | {params:,} | {act * 1000:.0f} | {update:.2f} | {1 / update:.2f} |",
-              flush=True)
+        try:
+            cost = grid_cost(LEVERS[name], device, batch)
+        except ValueError as e:
+            raise SystemExit(f"{name} is not a grid lever: {e}")
+        print(f"| {cost['grid']} ({name}) | {cost['offsets']} | {cost['params']:,} | {cost['act_s'] * 1000:.0f} "
+              f"| {cost['update_s']:.2f} | {1 / cost['update_s']:.2f} |", flush=True)
 
 
 def main():
