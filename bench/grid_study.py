@@ -99,7 +99,10 @@ def study_rows(args: argparse.Namespace, costs: dict[str, float]) -> dict[str, l
 
 
 def table(by_grid: dict[str, list[dict]], threshold: float) -> str:
-    """Markdown: one line per seed, each grid's worst seed first (in bold), grids fastest first."""
+    """Markdown: one line per seed, each grid's worst seed first (in bold), grids fastest first.
+
+    A grid with fewer seeds can sit above one with more: its count is beside its name.
+    """
     header = ["grid", "last voxel", "update (s, batch 8)", "updates/s in the run", "seed",
               f"first ≥ {100 * threshold:g} % (min, env steps, updates)", "final", "ran (min)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -110,7 +113,7 @@ def table(by_grid: dict[str, list[dict]], threshold: float) -> str:
             reached = ("not reached" if r["minutes"] is None
                        else f"{r['minutes']:.1f}, {r['env_steps']:,}, {r['updates']:,}")
             lines.append("| " + " | ".join([
-                f"**{r['voxels']}**" if first else "",
+                f"**{r['voxels']}**, {len(rows)} seed{'s' if len(rows) > 1 else ''}" if first else "",
                 f"{r['last_voxel_cm']:.2f} cm" if first and r["last_voxel_cm"] else "",
                 f"{r['update_s']:.2f}" if first and r["update_s"] else "",
                 f"{statistics.median(rates):.2f}" if first and rates else "",

@@ -44,9 +44,9 @@ def test_the_table_orders_grids_by_their_worst_seed_and_a_seed_that_never_got_th
                             "--grids", "16-16", "8-8-8", "8-8"]) == 0
     lines = (tmp_path / "grid_study-lift_lid.md").read_text().splitlines()
     rows = [line for line in lines if line.startswith("| ") and not line.startswith("| grid")]
-    assert rows[0].startswith("| **(8,8,8)** | 1.88 cm |") and "2 (worst)" in rows[0]
+    assert rows[0].startswith("| **(8,8,8)**, 2 seeds | 1.88 cm |") and "2 (worst)" in rows[0]
     assert "**5.0, 800, 200**" in rows[0]
-    assert rows[2].startswith("| **(16,16)** | 1.88 cm |") and "2 (worst)" in rows[2]
+    assert rows[2].startswith("| **(16,16)**, 2 seeds | 1.88 cm |") and "2 (worst)" in rows[2]
     assert "**not reached**" in rows[2] and "40 %" in rows[2]
     assert lines[-1] == "No seed has run yet: 8-8."
     with (tmp_path / "grid_study-lift_lid.csv").open(newline="") as f:
