@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import subprocess
 import sys
 from pathlib import Path
 from typing import Mapping, Optional, Sequence
@@ -243,17 +242,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         for name, overrides in LEVERS.items():
             print(f"{name:>20}  {' '.join(overrides) or '(the preset as it is)'}")
         return 0
-    failed = []
-    if not args.summary:
-        bench = Path(__file__).with_name("learning.py")
-        for seed in range(args.first_seed, args.first_seed + args.seeds):
-            for variant in args.variants:
-                code = subprocess.run([sys.executable, str(bench), *learning_args(args, variant, seed)]).returncode
-                if code == 130:  # interrupted: the rerun resumes from here
-                    print("interrupted; rerun the same command to resume", flush=True)
-                    return 130
-                if code:
-                    failed.append(f"{variant} seed {seed}")
+    failed = [] if args.summary else learning.run_each(
+        (f"{variant} seed {seed}", learning_args(args, variant, seed))
+        for seed in range(args.first_seed, args.first_seed + args.seeds) for variant in args.variants)
+    if failed is None:
+        return 130
     results = {variant: seed_curves(args, variant) for variant in args.variants}
     for variant, by_seed in results.items():  # each run wrote its own seed's aggregate: now every seed's
         if by_seed and not args.summary:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 from typing import Optional, Sequence
@@ -123,17 +122,15 @@ def table(by_grid: dict[str, list[dict]], threshold: float) -> str:
     return "\n".join(lines)
 
 
-def time_updates(grids: Sequence[str], task: str) -> dict[str, float]:
+def time_updates(grids: Sequence[str]) -> dict[str, float]:
     """Seconds per batch-8 update of the cpu-small cascade on each grid, one thread (bench/bench_qattention.py)."""
     import torch
     from bench_qattention import grid_cost
 
     torch.set_num_threads(1)
-    grid_fields = ("qattention.voxel_size", "qattention.depths", "qattention.bounds_offset")
     costs = {}
     for grid in grids:
-        overrides = [o for o in LEVERS[variant(task, grid)] if o.split("=")[0] in grid_fields]
-        costs[grid] = grid_cost(overrides, torch.device("cpu"), 8)["update_s"]
+        costs[grid] = grid_cost(GRIDS[grid], torch.device("cpu"), 8)["update_s"]
         print(f"{grid}: {costs[grid]:.2f} s per update", flush=True)
     return costs
 
@@ -177,21 +174,14 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = parse_args(argv)
-    failed = []
-    if not args.summary:
-        bench = Path(__file__).with_name("learning.py")
-        for seed in range(args.first_seed, args.first_seed + args.seeds):
-            for grid in args.grids:
-                if seed_csv(args, grid, seed).exists():
-                    continue
-                argv = learning_args(args, variant(args.task, grid), seed) + ["--thresholds", f"{args.threshold:g}"]
-                code = subprocess.run([sys.executable, str(bench), *argv]).returncode
-                if code == 130:  # interrupted: the rerun resumes from here
-                    print("interrupted; rerun the same command to resume", flush=True)
-                    return 130
-                if code:
-                    failed.append(f"{grid} seed {seed}")
-    costs = time_updates(args.grids, args.task) if args.costs else {}
+    failed = [] if args.summary else learning.run_each(
+        (f"{grid} seed {seed}", learning_args(args, variant(args.task, grid), seed)
+         + ["--thresholds", f"{args.threshold:g}"])
+        for seed in range(args.first_seed, args.first_seed + args.seeds) for grid in args.grids
+        if not seed_csv(args, grid, seed).exists())
+    if failed is None:
+        return 130
+    costs = time_updates(args.grids) if args.costs else {}
     print(write_results(args, costs))
     print(f"wrote {Path(args.results_dir) / f'grid_study-{args.task}'}.{{md,csv}}")
     return learning.exit_code(failed)

@@ -22,7 +22,6 @@ env steps / updates to 80 % and to its bar, and the final rate, the worst seed f
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -86,7 +85,8 @@ RUNGS: dict[str, Rung] = {r.task: r for r in (
          "opened without the heads weighed whole; 10-45 % with them); bar not yet met (BENCHMARKS.md, the ladder)"),
     Rung("put_item_in_drawer", 0.5, 60, DRAWER_TIMED_ENTRY, "open_drawer's, the time value kept: it opens the same "
          "chest first, and its open-gripper keyframes after the pull and after the lift read alike without it; "
-         "50 % in 45.9 and 53.2 min on seeds 1-2, 0-5 % in 60 min without it (BENCHMARKS.md, the ladder)"),
+         "50 % in 45.9 and 53.2 min on seeds 1-2, 35 % at best in 60 min on seed 3; 0-5 % without it "
+         "(BENCHMARKS.md, the ladder)"),
 )}
 
 
@@ -244,17 +244,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             entry = f"  {' '.join(r.overrides)} ({r.why})" if r.overrides else ""
             print(f"{r.task:>20}  bar {100 * r.bar:g} %, {r.minutes:g} min per seed{entry}")
         return 0
-    failed = []
-    if not args.summary:
-        bench = Path(__file__).with_name("learning.py")
-        for seed in range(args.first_seed, args.first_seed + args.seeds):
-            for task in args.tasks:
-                code = subprocess.run([sys.executable, str(bench), *learning_args(args, RUNGS[task], seed)]).returncode
-                if code == 130:  # interrupted: the rerun resumes from here
-                    print("interrupted; rerun the same command to resume", flush=True)
-                    return 130
-                if code:
-                    failed.append(f"{task} seed {seed}")
+    failed = [] if args.summary else learning.run_each(
+        (f"{task} seed {seed}", learning_args(args, RUNGS[task], seed))
+        for seed in range(args.first_seed, args.first_seed + args.seeds) for task in args.tasks)
+    if failed is None:
+        return 130
     print(write_results(args))
     print(f"wrote {Path(args.results_dir) / 'ladder'}.{{md,csv,png}}")
     return learning.exit_code(failed)

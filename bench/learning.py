@@ -35,9 +35,10 @@ from __future__ import annotations
 
 import argparse
 import signal
+import subprocess
 import sys
 from pathlib import Path
-from typing import Mapping, Optional, Sequence
+from typing import Iterable, Mapping, Optional, Sequence
 
 from learning_curves import (
     AGGREGATE_FIELDS,
@@ -166,6 +167,24 @@ def run_id_error(args: argparse.Namespace) -> Optional[str]:
         return None
     return (f"run id {bad[0]!r} ({len(bad[0])} characters) is not a valid id: at most {MAX_ID_LENGTH} letters, "
             "digits, '_', '.', '-'; shorten the tag")
+
+
+def run_each(runs: Iterable[tuple[str, Sequence[str]]]) -> Optional[list[str]]:
+    """Run this script once per (name, arguments), in turn, as ablation, ladder and grid study do.
+
+    Returns the names of the runs whose launcher failed, or None once one was interrupted (after
+    saying so: rerunning the same command resumes from there).
+    """
+    script = Path(__file__).resolve()
+    failed = []
+    for name, argv in runs:
+        code = subprocess.run([sys.executable, str(script), *argv]).returncode
+        if code == 130:
+            print("interrupted; rerun the same command to resume", flush=True)
+            return None
+        if code:
+            failed.append(name)
+    return failed
 
 
 def exit_code(failed: Sequence[str]) -> int:

@@ -109,10 +109,10 @@ def test_each_variants_aggregate_holds_every_seed_of_it(tmp_path, monkeypatch):
         (run_dir / "metrics" / "eval.csv").write_text("\n".join(rows) + "\n")
     run_budget.save_budget(runs / "learn-push_button-cpu-small-default-s1",
                                   run_budget.Budget([[0.0, 180.0]], held_rate=0.9))
-    # The runs are already on disk: ablation's own subprocess.run (only its: matplotlib's first import
-    # runs fc-list through the real one) reports each as done.
+    # The runs are already on disk: the bench's own subprocess.run (bench/learning.py's run_each; only its:
+    # matplotlib's first import runs fc-list through the real one) reports each as done.
     done = SimpleNamespace(run=lambda *a, **k: SimpleNamespace(returncode=0))
-    monkeypatch.setattr(ablation, "subprocess", done)
+    monkeypatch.setattr(ablation.learning, "subprocess", done)
     argv = ["--task", "push_button", "--variants", "default", "--seeds", "2", "--stop-at", "0.9",
             "--stop-held", "2", "--runs-dir", str(runs), "--results-dir", str(results)]
     assert ablation.main(argv) == 0
