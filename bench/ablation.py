@@ -32,7 +32,19 @@ from typing import Mapping, Optional, Sequence
 import learning  # bench/learning.py: runs and their seeds
 from learning_curves import Curve, first_reaching, when_reached
 
-GRID_8_8_8 = ("qattention.voxel_size=8", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.075]")
+#: Coarse-to-fine depth and voxel size, the paper's study written as (voxels per axis at each depth): a depth-d
+#: cube is centred on the voxel chosen before it, half-width bounds_offset[d-1]. Each grid spells out all three
+#: fields, so none inherits the preset's or an entry's (the cpu-small preset's is (8,8,8) since 2026-12-07).
+GRIDS: dict[str, tuple[str, ...]] = {
+    "16-16": ("qattention.voxel_size=16", "qattention.depths=2", "qattention.bounds_offset=0.15"),  # the paper's
+    "8-8": ("qattention.voxel_size=8", "qattention.depths=2", "qattention.bounds_offset=0.15"),  # 3.75 cm last voxels
+    "8-8-8": ("qattention.voxel_size=8", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.075]"),  # 1.9 cm
+    "16-16-16": ("qattention.voxel_size=16", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.0375]"),
+    # The last cube 10 cm wide, not 15: 1.25 cm voxels at the last depth, not 1.9 (stack_wine's greedy poses at
+    # revision 2 were 0.7-2.0 cm from the demos', the last voxel one off at the carry in 4 of 5 demos).
+    "8-8-8-fine": ("qattention.voxel_size=8", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.05]"),
+}
+GRID_8_8_8 = GRIDS["8-8-8"]
 HEADS_WHOLE = ("qattention.last_translation_td=1.0", "qattention.last_head_margin=1.0")
 
 #: Variant name -> config overrides on top of the preset. Each turns one lever of issue 13.
@@ -60,12 +72,8 @@ LEVERS: dict[str, tuple[str, ...]] = {
     "bf16": ("qattention.bf16=true",),  # where auto resolves to fp32 (no native bf16)
     "fp32": ("qattention.bf16=false",),  # where auto resolves to bf16 (AVX-512-bf16, AMX, GPU)
     "yaw-augmentation": ("qattention.demo_yaw_augmentation=45",),
-    # Coarse-to-fine depth and voxel size, the paper's study written as (voxels per axis at each
-    # depth): a depth-d cube is centred on the voxel chosen before it, half-width bounds_offset[d-1].
-    # (16,16) is the default: 1.9 cm voxels at the last depth in a 30 cm cube.
-    "grid-8-8": ("qattention.voxel_size=8",),  # 3.75 cm last voxels, the cheapest update
-    "grid-8-8-8": GRID_8_8_8,  # 1.9 cm again, from 3 cheap nets
-    "grid-16-16-16": ("qattention.depths=3", "qattention.bounds_offset=[0.15, 0.0375]"),  # 0.5 cm last voxels
+    # The grids on the preset (GRIDS): (16,16) is the paper's, and was cpu-small's until 2026-12-07.
+    **{f"grid-{grid}": levers for grid, levers in GRIDS.items()},
     # Cameras fused into one grid (the paper adds wrist and shoulder views where the front one is occluded).
     "front-wrist": ("sim.cameras=[front, wrist]",),
     "four-cameras": ("sim.cameras=[front, left_shoulder, right_shoulder, wrist]",),
@@ -115,16 +123,7 @@ LEVERS: dict[str, tuple[str, ...]] = {
 
 #: The paper's depth and voxel-size study on the take-lid and rubbish-in-bin tasks, run on the entries those
 #: rungs learn with (lift_lid's, put_in_bin's) with only the grid changed: ``lid-grid-16-16`` ...
-#: ``release-grid-16-16-16``. Each grid spells out all three fields, so none inherits the entry's (8,8,8).
-GRIDS: dict[str, tuple[str, ...]] = {
-    "16-16": ("qattention.voxel_size=16", "qattention.depths=2", "qattention.bounds_offset=0.15"),  # the paper's
-    "8-8": ("qattention.voxel_size=8", "qattention.depths=2", "qattention.bounds_offset=0.15"),
-    "8-8-8": GRID_8_8_8,  # the entries' own
-    "16-16-16": ("qattention.voxel_size=16", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.0375]"),
-    # The last cube 10 cm wide, not 15: 1.25 cm voxels at the last depth, not 1.9 (stack_wine's greedy poses at
-    # revision 2 were 0.7-2.0 cm from the demos', the last voxel one off at the carry in 4 of 5 demos).
-    "8-8-8-fine": ("qattention.voxel_size=8", "qattention.depths=3", "qattention.bounds_offset=[0.15, 0.05]"),
-}
+#: ``release-grid-8-8-8-fine`` (bench/grid_study.py).
 ENTRY_LEVERS = {  # each entry without its grid
     "lid": ("sim.cameras=[front, wrist]", "qattention.time_feature=false", "replay.demo_fraction=0.5"),
     "release": ("sim.cameras=[front, wrist]", "qattention.time_feature=false", "replay.demo_fraction=0.5",

@@ -3,7 +3,7 @@
     python bench/bench_qattention.py                 # CPU table (~10 min on 2 cores)
     python bench/bench_qattention.py --device cuda   # GPU: paper preset up to batch 128
     python bench/bench_qattention.py --quick         # smaller batches only
-    python bench/bench_qattention.py --grids default grid-8-8 grid-8-8-8 grid-16-16-16   # update cost per grid
+    python bench/bench_qattention.py --grids grid-16-16 grid-8-8 grid-8-8-8 grid-16-16-16   # update cost per grid
 
 Inputs come from qattention.synthetic (ray-cast table + sphere, 128x128 cameras). Each
 number is the median of 3 timed calls after one warm-up call; on CPU, batches above the
@@ -121,7 +121,7 @@ def main():
     ap.add_argument("--batches", type=int, nargs="*", default=None)
     ap.add_argument("--slow-act-s", type=float, default=1.5)
     ap.add_argument("--grids", nargs="+", default=None, metavar="LEVER",
-                    help="only time these grid levers of bench/ablation.py (and 'default'), cpu-small, batch 8")
+                    help="only time these grid levers of bench/ablation.py (grid-16-16 ...), cpu-small, batch 8")
     ap.add_argument("--threads", type=int, default=None,
                     help="torch threads (default: 1 on CPU, robust when other processes share the cores)")
     args = ap.parse_args()

@@ -1,7 +1,7 @@
 """What each depth of the cascade sees around the demos' keyframe poses: occupied voxels per cube, per grid.
 
     python bench/cube_occupancy.py --task put_in_bin --set "sim.cameras=[front, wrist]"
-    python bench/cube_occupancy.py --task stack_wine --demos 10 --grids default grid-8-8-8 grid-16-16-16
+    python bench/cube_occupancy.py --task stack_wine --demos 10 --grids grid-16-16 grid-8-8-8 grid-16-16-16
 
 A depth's Q-map can only rank voxels by what its cube holds. Records ``--demos`` scripted demos
 (seeds from 0), and at each keyframe state (the demo from its first frame) voxelises the cube
@@ -26,7 +26,7 @@ from ablation import LEVERS  # noqa: E402  (bench/ablation.py)
 from demo_fit import batch_of, by_keyframe, demo_transitions  # noqa: E402  (bench/demo_fit.py)
 
 #: Grid levers only: each overrides nothing but the cascade's voxel size, depths and cube sizes.
-GRIDS = ("default", "grid-8-8", "grid-8-8-8", "grid-16-16-16")
+GRIDS = ("grid-16-16", "grid-8-8", "grid-8-8-8", "grid-16-16-16")
 
 
 def occupied_per_depth(rows, qconfig) -> list[list[int]]:

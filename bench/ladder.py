@@ -14,7 +14,7 @@ the bar: resumable (rerun the command; a held or spent seed is skipped), its cur
 of every task first), so one diagnostic pass over the ladder comes before any second seed.
 
 Outputs, read from those per-seed CSVs (so seeds run on other days still combine):
-``bench/results/ladder.md`` (per task its demos, cameras, entry, then each seed's minutes /
+``bench/results/ladder.md`` (per task its demos, cameras, grid, entry, then each seed's minutes /
 env steps / updates to 80 % and to its bar, and the final rate, the worst seed first),
 ``ladder.csv`` (the same, one row per seed) and ``ladder.png`` (every task's curves).
 """
@@ -121,6 +121,11 @@ def run_config(args: argparse.Namespace, rung: Rung):
     return load_config(args.preset, overrides=(*overrides, {"sim": {"task": rung.task}}))
 
 
+def grid_name(qconfig) -> str:
+    """The cascade's grid as the paper writes it: voxels per axis at each depth, (8,8,8)."""
+    return "(" + ",".join([str(qconfig.voxel_size)] * qconfig.depths) + ")"
+
+
 def _cells(point: Optional[dict]) -> list[str]:
     if point is None:
         return ["not reached", "", ""]
@@ -135,7 +140,8 @@ def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning_c
         at_80, at_bar = learning_curves.first_reaching(curve, HEADLINE), learning_curves.first_reaching(curve, rung.bar)
         rows.append({
             "task": rung.task, "seed": seed, "bar": rung.bar, "demos": config.demos.episodes,
-            "cameras": "+".join(config.sim.cameras), "entry": " ".join(rung.overrides),
+            "cameras": "+".join(config.sim.cameras), "grid": grid_name(config.qattention),
+            "entry": " ".join(rung.overrides),
             "minutes_to_80": at_80 and round(at_80["minutes"], 2), "env_steps_to_80": at_80 and at_80["env_steps"],
             "updates_to_80": at_80 and at_80["learner_step"],
             "minutes_to_bar": at_bar and round(at_bar["minutes"], 2),
@@ -147,13 +153,14 @@ def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning_c
     return rows
 
 
-CSV_FIELDS = ["task", "seed", "bar", "demos", "cameras", "entry", "minutes_to_80", "env_steps_to_80", "updates_to_80",
-              "minutes_to_bar", "env_steps_to_bar", "updates_to_bar", "final_success", "evaluations", "minutes_run"]
+CSV_FIELDS = ["task", "seed", "bar", "demos", "cameras", "grid", "entry", "minutes_to_80", "env_steps_to_80",
+              "updates_to_80", "minutes_to_bar", "env_steps_to_bar", "updates_to_bar", "final_success", "evaluations",
+              "minutes_run"]
 
 
 def table(rows_by_task: dict[str, list[dict]]) -> str:
     """Markdown: one line per seed, grouped by task in ladder order, each task's worst seed first."""
-    header = ["task", "bar", "demos, cameras", "seed", "to 80 % (min, env steps, updates)",
+    header = ["task", "bar", "demos, cameras, grid", "seed", "to 80 % (min, env steps, updates)",
               "to the bar (min, env steps, updates)", "final", "ran (min)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for task, rows in rows_by_task.items():
@@ -165,7 +172,7 @@ def table(rows_by_task: dict[str, list[dict]]) -> str:
             to_bar = _cells(None if r["minutes_to_bar"] is None else
                             {"minutes": r["minutes_to_bar"], "env_steps": r["env_steps_to_bar"],
                              "learner_step": r["updates_to_bar"]})
-            setup = f"{r['demos']}, {r['cameras']}" + (f"; `{r['entry']}`" if r["entry"] else "")
+            setup = f"{r['demos']}, {r['cameras']}, {r['grid']}" + (f"; `{r['entry']}`" if r["entry"] else "")
             lines.append("| " + " | ".join([
                 f"**{task}**" if first else "", f"{100 * r['bar']:g} %" if first else "", setup if first else "",
                 f"{r['seed']}" + (" (worst)" if first and len(rows) > 1 else ""),

@@ -70,7 +70,7 @@ def test_the_table_puts_each_tasks_worst_seed_first_and_writes_md_csv_png(tmp_pa
         rows = list(csv.DictReader(f))
     assert [(r["task"], r["seed"]) for r in rows] == [("push_button", "2"), ("push_button", "1"),
                                                        ("lift_lid", "2"), ("lift_lid", "1")]
-    assert rows[0]["demos"] == "10" and rows[0]["cameras"] == "front"
+    assert rows[0]["demos"] == "10" and rows[0]["cameras"] == "front" and rows[0]["grid"] == "(8,8,8)"
     assert (results / "ladder.png").stat().st_size > 0
     assert args.seeds == 2
 

@@ -19,10 +19,12 @@ def test_paper_preset_has_the_reference_parameter_counts():
 
 
 def test_cpu_small_preset_is_smaller_but_same_shape_of_output():
-    small = build_networks(cpu_small())
-    assert n_params(small[1]) < n_params(build_networks(paper())[1]) / 3
-    q, rg = small[1](torch.zeros(2, 10, 16, 16, 16), torch.zeros(2, 11))
-    assert q.shape == (2, 16, 16, 16) and rg.shape == (2, 218)
+    config = cpu_small()
+    small = build_networks(config)
+    assert len(small) == 3 and config.voxel_size == 8  # the (8,8,8) grid
+    assert n_params(small[-1]) < n_params(build_networks(paper())[1]) / 3
+    q, rg = small[-1](torch.zeros(2, 10, 8, 8, 8), torch.zeros(2, 11))
+    assert q.shape == (2, 8, 8, 8) and rg.shape == (2, 218)
 
 
 @pytest.mark.parametrize("voxel_size", [8, 32])
