@@ -15,8 +15,12 @@ class TrainedRun:
     step: int  #: that checkpoint's learner step
 
 
-def load_trained_run(run_dir: Path) -> TrainedRun | None:
-    """The run's config and newest learner checkpoint; None (after saying so) if it has none."""
+def load_trained_run(run_dir: Path, acting: bool = False) -> TrainedRun | None:
+    """The run's config and newest learner checkpoint; None (after saying so) if it has none.
+
+    ``acting`` loads the weights the actors and the evaluator acted with: the online weights' average
+    where the run published one (``learner.acting_average``), else the online weights.
+    """
     import torch
 
     from deploy.config import load_config
@@ -33,4 +37,10 @@ def load_trained_run(run_dir: Path) -> TrainedRun | None:
         return None
     agent = C2FARM(qconfig, device="cpu")
     agent.load_state_dict(state["agent"])
+    if acting and config.learner.acting_average > 0 and state.get("acting_average"):
+        from learner.acting_average import ActingAverage
+
+        average = ActingAverage(config.learner.acting_average)
+        average.load_state_dict(state["acting_average"])
+        agent.load_weights(average.weights(agent.weights()))
     return TrainedRun(config, qconfig, agent, int(state["step"]))
