@@ -29,14 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from trained_run import load_trained_run  # noqa: E402  (bench/trained_run.py)
 
 
-def object_position(env, grasped: tuple[int, int]) -> np.ndarray:
-    """World position of a (body, link) the fake grasp can attach."""
-    import pybullet as p
-
-    body, link = grasped
-    if link == -1:
-        return np.asarray(p.getBasePositionAndOrientation(body, physicsClientId=env.scene.client)[0])
-    return np.asarray(p.getLinkState(body, link, physicsClientId=env.scene.client)[4])
+def graspables(task) -> list[tuple[str, int]]:
+    """The task's graspable (body name, link) pairs: names, because a reset spawns the bodies anew."""
+    names = {body: name for name, body in task.bodies.items()}
+    return [(names[body], link) for body, link in task.graspables()]
 
 
 def demo_reference(env, seed: int):
@@ -49,13 +45,13 @@ def demo_reference(env, seed: int):
     from actors.demos.keyframes import demo_keyframes
 
     env.reset(seed)
-    start = {obj: object_position(env, obj) for obj in env.task.graspables()}
+    start = {obj: env.task.pose_of(*obj)[0] for obj in graspables(env.task)}
     demo = record_demo(env, seed)
     keyframes = np.stack([keyframe_action(demo.observations[k]) for k in demo_keyframes(demo)])
     closed = [pose for pose in keyframes if pose[7] < 0.5]
     grasp = closed[0][:3] if closed else keyframes[-1, :3]
     obj = min(start, key=lambda o: float(np.linalg.norm(start[o] - grasp))) if start else None
-    return demo.success, keyframes, obj, (object_position(env, obj) if obj is not None else None)
+    return demo.success, keyframes, obj, (env.task.pose_of(*obj)[0] if obj is not None else None)
 
 
 def trace(run, seed: int, env, out=print) -> dict:
@@ -88,7 +84,7 @@ def trace(run, seed: int, env, out=print) -> dict:
         kind = "still held at the end"
     else:
         kind = "let go, no success"
-    offset = object_position(env, obj) - demo_rest if obj is not None else None
+    offset = env.task.pose_of(*obj)[0] - demo_rest if obj is not None else None
     rest = "" if offset is None else " ({:+.1f}, {:+.1f}, {:+.1f}) cm from the demo's rest".format(*100 * offset)
     out(f"seed {seed} ({'demo ok' if demo_ok else 'demo FAILED'}, {len(keyframes)} keyframes): {kind}{rest}")
     out("    " + " | ".join(lines))
