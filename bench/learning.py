@@ -86,7 +86,7 @@ def train(args: argparse.Namespace, run_id: str, seed: Optional[int]) -> bool:
     hog = f", {args.cpu_hog} core(s) kept busy beside it" if args.cpu_hog else ""
     print(f"{run_id}: {left / 60:.1f} of {args.minutes:g} min left{hog}\n+ {' '.join(cmd)}", flush=True)
     with cpu_hog(args.cpu_hog, left):
-        code = run_budgeted(cmd, run_dir, budget_s, progress_every=15.0 if args.stop_at is not None else 30.0,
+        code = run_budgeted(cmd, run_dir, budget_s, progress_every=5.0 if args.stop_at is not None else 30.0,
                             done=done)
     if code is not None:
         print(f"{run_id}: launcher exited by itself with code {code}", flush=True)

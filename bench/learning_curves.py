@@ -129,8 +129,17 @@ def curve_fields(curve: Curve) -> list[str]:
 
 
 def held(curve: Curve, threshold: float, times: int) -> bool:
-    """True when the last ``times`` evaluations all reached ``threshold`` (a run that can stop)."""
-    return times > 0 and len(curve) >= times and all(p["success_rate"] >= threshold for p in curve[-times:])
+    """True when ``times`` evaluations in a row reached ``threshold`` anywhere in the curve (a run that can stop).
+
+    Anywhere, not only at the end: a fast learner evaluates every ~12 s, so by the time the bench
+    looks again the pair that held may already be followed by an evaluation below it.
+    """
+    run = 0
+    for point in curve:
+        run = run + 1 if point["success_rate"] >= threshold else 0
+        if times > 0 and run >= times:
+            return True
+    return False
 
 
 def pyplot():
