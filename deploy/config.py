@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import platform
 import subprocess
 import time
@@ -274,9 +275,31 @@ def write_run_dir(config: RunConfig, overwrite: bool = True) -> Path:
     return run_dir
 
 
+#: CPU flags that change a run's speed several-fold (bf16 is native only with avx512_bf16 / amx_bf16).
+SPEED_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_bf16", "amx_tile")
+
+
+def cpu() -> str:
+    """The CPU as a run's record names it: model, logical cores and the flags of ``SPEED_FLAGS`` it has.
+
+    Hosts of one kind differ (an "AMD EPYC" VM with AVX2 only, another with AVX-512-bf16), so the
+    model name alone does not say how fast a learner was.
+    """
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return f"{platform.processor() or 'unknown'}, {os.cpu_count()} cores"
+    fields = dict(line.split(":", 1) for line in text.splitlines() if ":" in line)
+    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    flags = set(fields.get("flags", "").split())
+    have = " ".join(f for f in SPEED_FLAGS if f in flags) or "no avx2"
+    return f"{fields.get('model name', 'unknown')}, {os.cpu_count()} cores, {have}"
+
+
 def versions() -> dict[str, Optional[str]]:
-    """Versions of Python and the packages that shape results, plus the git commit."""
-    out: dict[str, Optional[str]] = {"python": platform.python_version(), "platform": platform.platform()}
+    """Versions of Python and the packages that shape results, the CPU, and the git commit."""
+    out: dict[str, Optional[str]] = {"python": platform.python_version(), "platform": platform.platform(),
+                                     "cpu": cpu()}
     for name, dist in (
         ("torch", "torch"),
         ("zenoh", "eclipse-zenoh"),

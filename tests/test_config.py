@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -301,6 +302,8 @@ def test_the_run_directory_holds_the_resolved_config_and_versions(tmp_path):
     for name in ("python", "torch", "zenoh", "pybullet", "ompl", "numpy", "git_commit"):
         assert name in versions
     assert versions["zenoh"].startswith("1.")
+    # the CPU too: hosts of one model name differ several-fold in learner speed (AVX2 only vs AVX-512-bf16)
+    assert f", {os.cpu_count()} cores" in versions["cpu"]
 
 
 def test_every_config_field_has_a_doc_comment():
