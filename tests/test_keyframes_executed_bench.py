@@ -32,6 +32,6 @@ def test_snapping_lands_on_voxel_centres_and_rotation_bins():
 def test_a_task_the_arm_can_do_succeeds_in_every_variant(capsys):
     assert keyframes_executed.main(["--tasks", "reach_target", "--episodes", "2"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0].startswith("## reach_target: 2 evaluation seeds, grid 2 x 16^3")
+    assert lines[0].startswith("## reach_target: 2 evaluation seeds, grid 3 x 8^3")  # the preset's (8,8,8)
     for variant in keyframes_executed.VARIANTS:
         assert next(line for line in lines if line.split()[0] == variant).split()[1:] == ["2", "success"]

@@ -259,7 +259,8 @@ def test_the_robot_acts_greedily_with_an_exported_policy_watched_live_in_foxglov
                 while not wanted <= client.received.keys() and time.monotonic() < deadline:
                     client.pump(1.0)
         assert wanted <= client.received.keys(), sorted(client.received)
-        assert [e.id for e in client.received["/policy/attention"][0].entities] == ["depth0", "depth1"]
+        depths = cfg_mod.load_config().qattention.depths  # one entity per depth of the preset's grid
+        assert [e.id for e in client.received["/policy/attention"][0].entities] == [f"depth{d}" for d in range(depths)]
         assert proc.wait(timeout=600) == 0, "".join(lines)[-2000:]
         reader.join(timeout=30)
         output = "".join(lines)
