@@ -96,9 +96,11 @@ def test_robot_actor_feeds_the_replay_and_follows_weights(tmp_path: Path):
             )
             robot = first["robot-0"]["counters"]
             assert robot["episodes"] >= 2 and robot["operator_reset_done"] >= 2
-            replay = wait_for(lambda: (s := status()) and s["replay"]["counters"].get("demo_transitions", 0) > 0
-                              and s["replay"]["counters"], 120, "the robot demo in the replay")
-            assert replay["agent_transitions"] > 0  # the robot's episodes beside the demo's, in one replay
+            # the robot's episodes beside the demo's, in one replay; the replay's counters reach the status on its
+            # own heartbeat, so an episode the robot saw acked can show there a beat later
+            wait_for(lambda: (s := status()) and s["replay"]["counters"].get("demo_transitions", 0) > 0
+                     and s["replay"]["counters"].get("agent_transitions", 0) > 0, 120,
+                     "the robot demo and the robot's episodes in the replay")
             wait_for(
                 lambda: (s := status()) and (s["summary"]["updates"] or 0) >= 2
                 and s["robot-0"]["counters"].get("weights_version", 0) >= 2 and s,
