@@ -86,11 +86,13 @@ def grid_cost(overrides, device, batch: int) -> dict:
     if isinstance(changes.get("bounds_offset"), list):
         changes["bounds_offset"] = tuple(changes["bounds_offset"])
     cfg = cpu_small().replace(**changes)
+    from ablation import grid_name  # bench/ablation.py (bench/ is on the path where this runs)
+
     agent = C2FARM(cfg, device, seed=0)
     data = TransitionBatch.from_arrays(transition_arrays(batch, seed=batch), ("front",), device)
     obs1 = ObservationBatch.from_arrays(observation_arrays(1, seed=1), ("front",), device)
     return {
-        "grid": "(" + ",".join([str(cfg.voxel_size)] * cfg.depths) + ")",
+        "grid": grid_name(cfg),
         "offsets": ", ".join(f"{cfg.offset(d):g}" for d in range(1, cfg.depths)),
         "params": sum(p.numel() for p in agent.nets.parameters()),
         "act_s": timed(lambda: agent.act(obs1), device, repeats=5),

@@ -32,7 +32,7 @@ from typing import Optional, Sequence
 
 import learning  # bench/learning.py: the arguments every learning bench takes
 import learning_curves  # bench/learning_curves.py
-from ablation import GRIDS, LEVERS, learning_args  # bench/ablation.py: the grid levers of each entry
+from ablation import GRIDS, LEVERS, grid_name, learning_args  # bench/ablation.py: the grid levers of each entry
 
 #: The study's tasks and the ladder entry each grid is swapped into (bench/ablation.py's ENTRY_LEVERS).
 ENTRIES = {"lift_lid": "lid", "put_in_bin": "release"}
@@ -86,7 +86,7 @@ def study_rows(args: argparse.Namespace, costs: dict[str, float]) -> dict[str, l
             if path.exists():
                 rows.append(seed_row(grid, seed, learning_curves.read_curve_csv(path), args.threshold))
         for row in rows:
-            row.update(voxels="(" + ",".join([str(cfg.voxel_size)] * cfg.depths) + ")",
+            row.update(voxels=grid_name(cfg),
                        last_voxel_cm=round(100 * 2 * cfg.offset(cfg.depths - 1) / cfg.voxel_size, 2)
                        if cfg.depths > 1 else None,
                        update_s=costs.get(grid))

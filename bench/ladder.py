@@ -29,7 +29,7 @@ from typing import Optional, Sequence
 
 import learning  # bench/learning.py: the arguments every learning bench takes
 import learning_curves  # bench/learning_curves.py
-from ablation import GRIDS, LEVERS  # bench/ablation.py: the levers and grids the entries are made of
+from ablation import GRIDS, LEVERS, grid_name  # bench/ablation.py: the levers and grids the entries are made of
 
 TAG = "ladder"
 HEADLINE = 0.8  #: every rung is also timed to this rate, so the tasks compare in one column
@@ -124,11 +124,6 @@ def run_config(args: argparse.Namespace, rung: Rung):
 
     overrides = tuple(parse_override(o) for o in (*rung.overrides, *args.set))
     return load_config(args.preset, overrides=(*overrides, {"sim": {"task": rung.task}}))
-
-
-def grid_name(qconfig) -> str:
-    """The cascade's grid as the paper writes it: voxels per axis at each depth, (8,8,8)."""
-    return "(" + ",".join([str(qconfig.voxel_size)] * qconfig.depths) + ")"
 
 
 def _cells(point: Optional[dict]) -> list[str]:
