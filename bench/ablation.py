@@ -141,6 +141,11 @@ LEVERS.update({f"{entry}-grid-{grid}": (*levers, *GRIDS[grid])
 #: that changes nothing costs 1 % of the value against acting now, below the Q noise; at 0.9 it costs 10 %.
 #: (Seed 1, 60 min: 60 % at best, as the entry; the loops stayed, with the gripper shut: BENCHMARKS.md.)
 LEVERS["release-gamma-0.9"] = (*ENTRY_LEVERS["release"], *GRID_8_8_8, "qattention.gamma=0.9")
+#: ... or the time value kept in the proprioception (as the reference keeps it, and as put_item_in_drawer's entry
+#: does): a repeated decision then changes the state, and the steps left are in it, so a loop is no longer a fixed
+#: point of the greedy policy.
+LEVERS["release-timed"] = tuple(lever for lever in (*ENTRY_LEVERS["release"], *GRID_8_8_8)
+                                if lever != "qattention.time_feature=false")
 
 
 def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str]:
