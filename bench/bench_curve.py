@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from synthetic_episodes import synthetic_episode  # noqa: E402  (bench/synthetic_episodes.py)
 
+from deploy.config import cpu  # noqa: E402
 from protocol.sample_wire import ReplayClient  # noqa: E402
 
 SHAPES = (("cpu-small, B=8", 8), ("paper batch, B=128", 128))  #: one 128 px camera, as the cpu-small preset
@@ -146,13 +147,6 @@ def run_link(tmp: Path, keys: dict, curve: bool, io_threads: int, seconds: float
         server.wait(30)
 
 
-def cpu_model() -> str:
-    try:
-        return next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        return "unknown CPU"
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="2 s per measurement instead of 5")
@@ -170,7 +164,7 @@ def main() -> int:
             for (shape, _), r in zip(SHAPES, results[name]):
                 print(f"  {name}, {shape}: {r['batches_s']:.1f} batches/s, {r['mb_s']:.0f} MB/s", flush=True)
     assert "torch" not in sys.modules
-    print(f"\n{os.cpu_count()} cores, {cpu_model()}, Python {sys.version.split()[0]}, pyzmq {zmq.__version__} "
+    print(f"\n{cpu()}, Python {sys.version.split()[0]}, pyzmq {zmq.__version__} "
           f"(libzmq {zmq.zmq_version()}), torch not loaded; load average {load[0]:.1f} at start, "
           f"{os.getloadavg()[0]:.1f} at the end\n")
     print("| batch | MB/batch | link | batches/s | MB/s | wait p50 | wait p99 | "

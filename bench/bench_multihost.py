@@ -186,9 +186,11 @@ def main() -> int:
                                    ("TLS, 5 % loss", True, ("loss", 5)), ("TLS, 100 ms delay", True, ("delay", 100))):
             rows.append(variant(topology, faults, root, name, certs if keyed else None, fault, args))
             print(f"{name}: done", flush=True)
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), "?")
-    print(f"\n{cpu}, Python {platform.python_version()}; {args.episodes} episodes of {rows[0]['bytes'] / 1e6:.2f} MB, "
-          f"{args.weights} weights of {args.weights_mb:g} MB per variant; files in {root}\n")
+    from deploy.config import cpu
+
+    print(f"\n{cpu()}, Python {platform.python_version()}; {args.episodes} episodes of "
+          f"{rows[0]['bytes'] / 1e6:.2f} MB, {args.weights} weights of {args.weights_mb:g} MB per variant; "
+          f"files in {root}\n")
     print("| link | episodes/s | MB/s | puts per episode | acked episodes lost | weights latency median (ms) | "
           "max (ms) | weights received |")
     print("|---|---|---|---|---|---|---|---|")

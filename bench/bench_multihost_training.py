@@ -265,12 +265,12 @@ def fmt(value: float | None, spec: str) -> str:
 
 
 def print_table(rows: list[dict], args: argparse.Namespace, root: Path) -> None:
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), "?")
-    cores = sum(1 for line in open("/proc/cpuinfo") if line.startswith("processor"))
+    from deploy.config import cpu
+
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                             text=True).stdout.strip() or "?"
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    print(f"\n{cpu}, {cores} cores, Python {platform.python_version()}; {date}, commit {commit}; "
+    print(f"\n{cpu()}, Python {platform.python_version()}; {date}, commit {commit}; "
           f"batch {args.batch_size}, {args.window_s:.0f} s window per variant; files in {root}\n")
     print("| link | learner updates/s | box1 env steps/s | episodes acked/s | weights v learner / box1 | "
           "staleness mean / max | resends | kB sent per acked episode | loss start -> end | clean stop |")

@@ -30,6 +30,7 @@ sys.path.insert(0, str(REPO))
 
 from synthetic_episodes import synthetic_episode  # noqa: E402  (bench/synthetic_episodes.py, the tests' too)
 
+from deploy import config as deploy_config  # noqa: E402
 from protocol import Episode, decode, encode, keys  # noqa: E402
 from protocol.fabric import FabricConfig, open_session  # noqa: E402
 from protocol.observation import CAMERA_NAMES  # noqa: E402
@@ -190,7 +191,7 @@ def main() -> None:
     repeats = 5 if args.quick else 30
     count = {"1 camera": 20, "4 cameras": 10} if args.quick else {"1 camera": 200, "4 cameras": 60}
 
-    cpu = _cpu_name()
+    cpu = deploy_config.cpu()
     print(f"machine: {cpu}, Python {platform.python_version()}, zenoh {metadata.version('eclipse-zenoh')}, "
           f"numpy {metadata.version('numpy')}, safetensors {metadata.version('safetensors')}\n")
     print("Codec (median of %d):\n" % repeats)
@@ -203,16 +204,6 @@ def main() -> None:
     print(table(rows, ["episode", "shm", "MB", "episodes", "episodes/s", "MB/s", "rejected"]))
 
 
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                import os
-
-                return f"{line.split(':', 1)[1].strip()} ({os.cpu_count()} cores)"
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from synthetic_episodes import synthetic_episode  # noqa: E402  (bench/synthetic_episodes.py)
 
+from deploy.config import cpu  # noqa: E402
 from protocol import keys  # noqa: E402
 from protocol.fabric import FabricConfig, open_session  # noqa: E402
 from protocol.messages import Status, decode, encode  # noqa: E402
@@ -247,12 +248,7 @@ def main() -> int:
         tmp = Path(d)
         bench_in_process(tmp, a.quick)
         bench_ingest_and_service(tmp, a.quick)
-    cpu = "unknown CPU"
-    try:
-        cpu = [line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")][0]
-    except Exception:
-        pass
-    print(f"\n{os.cpu_count()} cores, {cpu}, Python {sys.version.split()[0]}\n")
+    print(f"\n{cpu()}, Python {sys.version.split()[0]}\n")
     print("| measurement | result | notes |\n|---|---|---|")
     for what, value, note in ROWS:
         print(f"| {what} | {value} | {note} |")
