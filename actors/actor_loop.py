@@ -47,6 +47,7 @@ class Rollout:
     unreachable_reason: str = ""  #: the control agent's why, for an unreachable end (UNREACHABLE_REASONS)
     reach_checks: int = 0  #: reachability tests run while acting (reachable_top_k)
     reach_replaced: int = 0  #: decisions whose first choice was unreachable and a reachable candidate took over
+    repeats_skipped: int = 0  #: decisions whose choice repeated the gripper's pose and one that moves took over
 
     @property
     def total_reward(self) -> float:
@@ -54,10 +55,12 @@ class Rollout:
 
 
 def rollout(env: Env, agent: C2FARM, cameras, seed: int, explore: bool, stop=None, top_k: int = 0,
-            on_decision: Callable[[Observation, ActResult], None] | None = None) -> Rollout | None:
+            on_decision: Callable[[Observation, ActResult], None] | None = None,
+            skip_repeats: bool = False) -> Rollout | None:
     """Play one episode: observe, choose a next-best pose, let the control agent execute it.
 
-    ``top_k`` > 1 lets an unreachable choice give way to the best reachable one of the top-K.
+    ``top_k`` > 1 lets an unreachable choice give way to the best reachable one of the top-K;
+    ``skip_repeats``, a choice that repeats the gripper's pose to the best one that moves.
     ``on_decision`` sees each observation with the cascade's decision on it before the arm
     moves (the live view draws the attention). Returns None when ``stop`` is set mid-episode
     (a cut-short episode is not data).
@@ -69,12 +72,14 @@ def rollout(env: Env, agent: C2FARM, cameras, seed: int, explore: bool, stop=Non
         if stop is not None and stop.is_set():
             return None
         act = agent.act(ObservationBatch.from_observations([obs], cameras, agent.device), explore=explore,
-                        reachable=reachable, top_k=top_k)
+                        reachable=reachable, top_k=top_k, skip_repeats=skip_repeats)
         if on_decision is not None:
             on_decision(obs, act)
         if act.reach_checks is not None:
             result.reach_checks += int(act.reach_checks[0])
             result.reach_replaced += int(act.reach_replaced[0])
+        if act.repeat_skipped is not None:
+            result.repeats_skipped += int(act.repeat_skipped[0])
         action = np.asarray(act.action[0], dtype=np.float32)
         # The labels actually chosen (per-depth voxels, cube centres, bins) travel with the
         # observation: re-encoding the continuous pose would not always give them back.
@@ -190,7 +195,7 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
             episode_id = first_id + n
             seed = episode_seed(ctx.seed, ctx.instance, episode_id)
             r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop,
-                        top_k=config.reachable_top_k)
+                        top_k=config.reachable_top_k, skip_repeats=config.skip_repeats)
             if r is None:
                 break
             if config.scene_bounds_on_wire:

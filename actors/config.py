@@ -17,6 +17,9 @@ class ActorConfig:
     epsilon_decay_updates: int = 0
     #: an unreachable choice gives way to the best reachable (IK test) of the top-K; 0 = off (reference)
     reachable_top_k: int = 0
+    #: a choice that repeats the gripper's pose (its voxel, rotation bins and gripper state) gives way to the best one
+    #: that moves; off = the reference (a greedy policy whose state does not change then repeats it to the end)
+    skip_repeats: bool = False
     torch_threads: int = 1  #: intra-op threads for acting (one core per actor), >= 1
     #: unacknowledged episodes kept for resending, >= 1; a full outbox waits, then drops the oldest
     outbox_size: int = 16

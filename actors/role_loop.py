@@ -89,7 +89,7 @@ class EpisodeStats:
 
     counts: dict[str, float] = field(default_factory=lambda: {
         "episodes": 0, "env_steps": 0, "successes": 0, "unreachable": 0, "timeouts": 0, "reach_checks": 0,
-        "reach_replaced": 0})
+        "reach_replaced": 0, "repeats_skipped": 0})
 
     def add(self, rollout: Rollout) -> None:
         """Count one finished ``actors.actor_loop.Rollout``."""
@@ -104,6 +104,7 @@ class EpisodeStats:
             c[key] = c.get(key, 0) + 1
         c["reach_checks"] += rollout.reach_checks
         c["reach_replaced"] += rollout.reach_replaced
+        c["repeats_skipped"] += rollout.repeats_skipped
 
     def as_dict(self) -> dict[str, float]:
         episodes = max(1, self.counts["episodes"])

@@ -146,6 +146,9 @@ LEVERS["release-gamma-0.9"] = (*ENTRY_LEVERS["release"], *GRID_8_8_8, "qattentio
 #: point of the greedy policy.
 LEVERS["release-timed"] = tuple(lever for lever in (*ENTRY_LEVERS["release"], *GRID_8_8_8)
                                 if lever != "qattention.time_feature=false")
+#: ... or the acting rule that ends the loops where they start: a choice that repeats the gripper's pose (its voxel,
+#: rotation bins and gripper state) gives way to the best one that moves (qattention/repeats.py).
+LEVERS["release-skip-repeats"] = (*ENTRY_LEVERS["release"], *GRID_8_8_8, "actor.skip_repeats=true")
 
 
 def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str]:

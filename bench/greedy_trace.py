@@ -69,10 +69,13 @@ def trace(run, seed: int, env, out=print) -> dict:
         k = int(np.argmin(gaps))
         held = env.scene.grasped is not None
         held_ever |= held
-        lines.append(f"{'open' if pose[7] > 0.5 else 'shut'}{'+held' if held else ''} k{k + 1} {100 * gaps[k]:.1f}")
+        moved_on = " (moved on)" if act.repeat_skipped is not None and act.repeat_skipped[0] else ""
+        lines.append(f"{'open' if pose[7] > 0.5 else 'shut'}{'+held' if held else ''} k{k + 1} {100 * gaps[k]:.1f}"
+                     f"{moved_on}")
 
     r = rollout(env, run.agent, run.qconfig.cameras, seed, explore=False,
-                top_k=run.config.actor.reachable_top_k, on_decision=on_decision)
+                top_k=run.config.actor.reachable_top_k, on_decision=on_decision,
+                skip_repeats=run.config.actor.skip_repeats)
     held_ever |= env.scene.grasped is not None
     if r.success:
         kind = "success"
@@ -95,16 +98,19 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dir", type=Path, help="runs/<run-id> with config.yaml and checkpoints/learner")
     parser.add_argument("--episodes", type=int, default=20, help="evaluation seeds to play")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="change the run's config for the replay, e.g. actor.skip_repeats=true (repeatable)")
     args = parser.parse_args(argv)
 
     from actors.panda_env import PandaEnv
 
-    run = load_trained_run(args.run_dir, acting=True)
+    run = load_trained_run(args.run_dir, acting=True, overrides=tuple(args.set))
     if run is None:
         return 1
     env = PandaEnv(run.config.sim)
     print(f"{run.config.sim.task}, learner step {run.step}, acting weights; per decision: gripper (+held when "
-          f"the hand holds something), the nearest demo keyframe and its distance (cm)")
+          f"the hand holds something), the nearest demo keyframe and its distance (cm), '(moved on)' where a repeat "
+          f"of the gripper's pose gave way (actor.skip_repeats)" + (f"; with {' '.join(args.set)}" if args.set else ""))
     ends = []
     try:
         for seed in range(run.config.actor.eval_seed, run.config.actor.eval_seed + args.episodes):

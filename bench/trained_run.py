@@ -15,21 +15,25 @@ class TrainedRun:
     step: int  #: that checkpoint's learner step
 
 
-def load_trained_run(run_dir: Path, acting: bool = False) -> TrainedRun | None:
+def load_trained_run(run_dir: Path, acting: bool = False, overrides: tuple[str, ...] = ()) -> TrainedRun | None:
     """The run's config and newest learner checkpoint; None (after saying so) if it has none.
 
     ``acting`` loads the weights the actors and the evaluator acted with: the online weights' average
-    where the run published one (``learner.acting_average``), else the online weights.
+    where the run published one (``learner.acting_average``), else the online weights. ``overrides``
+    (``section.key=value``, as ``--set`` takes them) change the run's config, e.g. an acting rule to try
+    on the same weights; they must leave the network as it was trained.
     """
     import torch
 
     from deploy.config import load_config
+    from deploy.config_loader import parse_override
     from deploy.roles import network_config
     from learner.checkpoint import load_latest
     from qattention.agent import C2FARM
 
     torch.set_num_threads(1)
-    config = load_config(preset=None, files=(run_dir / "config.yaml",))
+    config = load_config(preset=None, files=(run_dir / "config.yaml",),
+                         overrides=tuple(parse_override(text) for text in overrides))
     qconfig = network_config(config)
     state = load_latest(run_dir / "checkpoints" / "learner")
     if state is None:

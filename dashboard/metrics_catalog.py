@@ -95,6 +95,8 @@ _ACTING: dict[str, Entry] = {  # what every acting process counts: the simulated
     "reach_checks": _c("actor_reach_checks", "Reachability tests run while choosing poses."),
     "reach_replaced": _c("actor_reach_replaced",
                          "Decisions whose first choice was unreachable and a reachable candidate replaced it."),
+    "repeats_skipped": _c("actor_repeats_skipped",
+                          "Decisions that repeated the gripper's pose, replaced by the best one that moves."),
     "weights_version": _g("actor_weights_version", "Weights version this actor acts with (0: initial network)."),
     "epsilon": _g("actor_epsilon", "Exploration probability this actor acts with now (actor.epsilon, decayed)."),
     "success_rate": RATIO,

@@ -61,14 +61,16 @@ class C2FARM:
 
     @torch.no_grad()
     def act(self, obs: ObservationBatch, explore: bool = False, reachable: ReachabilityTest | None = None,
-            top_k: int = 0) -> ActResult:
+            top_k: int = 0, skip_repeats: bool = False) -> ActResult:
         """Next-best pose for every observation of the batch (greedy unless ``explore`` and epsilon > 0).
 
         With ``reachable`` and ``top_k`` > 1, an unreachable choice gives way to the best reachable
-        one of the top-K candidates (reachability.py).
+        one of the top-K candidates (reachability.py); with ``skip_repeats``, a choice that repeats
+        the gripper's pose gives way to the best one that moves (repeats.py).
         """
         self.nets.eval()
-        return descend(obs, [self._q(n) for n in self.nets], self.config, explore, self.generator, reachable, top_k)
+        return descend(obs, [self._q(n) for n in self.nets], self.config, explore, self.generator, reachable, top_k,
+                       skip_repeats)
 
     # ---------------------------------------------------------------- learning
     def labels(self, batch: TransitionBatch):

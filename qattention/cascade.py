@@ -5,7 +5,8 @@ q_rot_grip [B, 3*bins+2] | None)``, so the same loop serves the networks and any
 The final translation is the centre of the last chosen voxel; rotation/gripper come from the
 last depth's head (greedy, or explored, see exploration.py). With a reachability test and
 ``top_k`` > 1, an unreachable choice is replaced by the best reachable candidate of the last
-depth (reachability.py). Each depth's best voxels by Q come back too (``top_voxels``), for
+depth (reachability.py); with ``skip_repeats``, a choice that repeats the gripper's pose by the
+best one that moves (repeats.py). Each depth's best voxels by Q come back too (``top_voxels``), for
 whoever watches the decision (the live view); they never travel to the replay.
 """
 
@@ -22,6 +23,8 @@ from .batch import ObservationBatch
 from .crop import gather_points
 from .exploration import explore_rotation, explore_voxel
 from .reachability import ReachabilityTest, inside_workspace, ranked_candidates
+from .repeats import CANDIDATES as MOVING_CANDIDATES
+from .repeats import moving_choice, repeats_pose
 from .voxelise import child_bounds, unflatten_index, voxel_centre, voxelise
 
 QFunction = Callable[[torch.Tensor, torch.Tensor], tuple]
@@ -45,6 +48,8 @@ class ActResult:
     voxel_size: int  #: voxels per side of every depth's grid (a voxel's edge is its box's extent / voxel_size)
     reach_checks: np.ndarray | None = None  #: int64 [B] reachability tests run (None: acting without them)
     reach_replaced: np.ndarray | None = None  #: bool [B] the first choice was unreachable and a candidate replaced it
+    #: bool [B] the choice repeated the gripper's pose and the best one that moves replaced it (None: rule off)
+    repeat_skipped: np.ndarray | None = None
 
     def replay_elements(self) -> dict[str, np.ndarray]:
         """The named arrays to store with the observation (keys of ``TransitionBatch``)."""
@@ -87,6 +92,7 @@ def descend(
     generator: torch.Generator | None = None,
     reachable: ReachabilityTest | None = None,
     top_k: int = 0,
+    skip_repeats: bool = False,
 ) -> ActResult:
     b, v = obs.size, config.voxel_size
     explore = explore and config.epsilon > 0
@@ -113,19 +119,43 @@ def descend(
         rot, grip = explore_rotation(rot, grip, config, generator)
     quat = bins_to_rotation(rot, config.rotation_resolution)
     action = torch.cat([centre.float(), quat, grip[:, None].float()], 1)
-    checks = replaced = None
-    if reachable is not None and top_k > 1:
-        checks, replaced = np.zeros(b, np.int64), np.zeros(b, bool)
+    checks = replaced = skipped = None
+    checking = reachable is not None and top_k > 1
+    if checking or skip_repeats:
         held = rotation_to_bins(obs.gripper_pose[:, 3:7], config.rotation_resolution)
+
+    def take(i: int, voxel: torch.Tensor, bins: torch.Tensor, gripper: int | None = None) -> None:
+        """Sample ``i`` acts on another candidate of the last depth (idx, centre are the lists' last entries)."""
+        idx[i], rot[i] = voxel, bins
+        centre[i] = voxel_centre(idx[i], bounds[i], v)
+        qs[-1][i] = q_trans[i, idx[i, 0], idx[i, 1], idx[i, 2]]
+        action[i, :7] = torch.cat([centre[i].float(), bins_to_rotation(rot[i], config.rotation_resolution)])
+        if gripper is not None:
+            grip[i] = action[i, 7] = gripper
+
+    if checking:
+        checks, replaced = np.zeros(b, np.int64), np.zeros(b, bool)
         for i in range(b):
             checks[i], choice = _reachable_choice(action[i], q_trans[i], q_rot[i], bounds[i], workspace[i], held[i],
                                                   config, reachable, top_k)
             if choice is not None:
                 replaced[i] = True
-                idx[i], rot[i] = choice
-                centre[i] = voxel_centre(idx[i], bounds[i], v)
-                qs[-1][i] = q_trans[i, idx[i, 0], idx[i, 1], idx[i, 2]]
-                action[i, :7] = torch.cat([centre[i].float(), bins_to_rotation(rot[i], config.rotation_resolution)])
+                take(i, *choice)
+    if skip_repeats:
+        skipped = np.zeros(b, bool)
+        separation = max(1, REACH_SEPARATION_DEG // config.rotation_resolution)
+        for i in range(b):
+            position, gripper_open = obs.gripper_pose[i, :3], float(obs.gripper_open[i])
+            if not repeats_pose(centre[i], rot[i], int(grip[i]), bounds[i], v, position, held[i], gripper_open):
+                continue
+            tests, choice = moving_choice(idx[i], rot[i], int(grip[i]), q_trans[i], q_rot[i], q_grip[i], bounds[i],
+                                          workspace[i], position, held[i], gripper_open, config, separation,
+                                          reachable if checking else None, max(top_k, MOVING_CANDIDATES))
+            if checks is not None:
+                checks[i] += tests
+            if choice is not None:
+                skipped[i] = True
+                take(i, *choice)
     np_ = lambda t: t.detach().cpu().numpy()  # noqa: E731
     return ActResult(
         action=np_(action).astype(np.float32),
@@ -138,6 +168,7 @@ def descend(
         voxel_size=v,
         reach_checks=checks,
         reach_replaced=replaced,
+        repeat_skipped=skipped,
     )
 
 
