@@ -50,6 +50,8 @@ GRID_8_8_8 = GRIDS["8-8-8"]
 def grid_name(qconfig) -> str:
     """A cascade's grid as the paper writes it: voxels per axis at each depth, (8,8,8)."""
     return "(" + ",".join([str(qconfig.voxel_size)] * qconfig.depths) + ")"
+
+
 HEADS_WHOLE = ("qattention.last_translation_td=1.0", "qattention.last_head_margin=1.0")
 
 #: Variant name -> config overrides on top of the preset. Each turns one lever of issue 13.

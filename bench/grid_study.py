@@ -86,7 +86,8 @@ def study_rows(args: argparse.Namespace, costs: dict[str, float]) -> dict[str, l
             if path.exists():
                 rows.append(seed_row(grid, seed, learning_curves.read_curve_csv(path), args.threshold))
         for row in rows:
-            row.update(voxels=grid_name(cfg),
+            suffix = grid.split("-")[-1]  # "8-8-8-fine": the same voxels as (8,8,8), a smaller last cube
+            row.update(voxels=grid_name(cfg) + ("" if suffix.isdigit() else f" {suffix}"),
                        last_voxel_cm=round(100 * 2 * cfg.offset(cfg.depths - 1) / cfg.voxel_size, 2)
                        if cfg.depths > 1 else None,
                        update_s=costs.get(grid))
