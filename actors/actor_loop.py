@@ -195,7 +195,7 @@ def run(setup: ActingSetup, ctx: RoleContext) -> int:
             episode_id = first_id + n
             seed = episode_seed(ctx.seed, ctx.instance, episode_id)
             r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop,
-                        top_k=config.reachable_top_k, skip_repeats=config.skip_repeats)
+                        **config.acting_rules())
             if r is None:
                 break
             if config.scene_bounds_on_wire:

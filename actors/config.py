@@ -55,6 +55,10 @@ class ActorConfig:
         if not -1 <= self.foxglove_port <= 65535:
             raise ValueError(f"foxglove_port must be -1 (off), 0 (a free port) or a port (got {self.foxglove_port})")
 
+    def acting_rules(self) -> dict[str, int | bool]:
+        """``rollout``'s keyword arguments for this config's acting rules: top-K reachability, skipping repeats."""
+        return {"top_k": self.reachable_top_k, "skip_repeats": self.skip_repeats}
+
     def epsilon_at(self, learner_step: int) -> float:
         """Exploration probability when acting with weights from this learner step (DQN's linear anneal).
 

@@ -69,7 +69,7 @@ def evaluate(env, policy: ActingPolicy, config: ActorConfig, cameras, record_dir
         if stop is not None and stop.is_set():
             return None
         r = rollout(env, policy.agent, cameras, config.eval_seed + i, explore=False, stop=stop,
-                    top_k=config.reachable_top_k, on_decision=on_decision, skip_repeats=config.skip_repeats)
+                    on_decision=on_decision, **config.acting_rules())
         if r is None:
             return None
         successes += int(r.success)

@@ -193,7 +193,7 @@ def greedy_rollouts(env, agent, config, cameras, scripted: list[list[np.ndarray]
     ends, per_decision = Counter(), {}
     for i, waypoints in enumerate(scripted):
         r = rollout(env, agent, cameras, config.actor.eval_seed + i, explore=False,
-                    top_k=config.actor.reachable_top_k, skip_repeats=config.actor.skip_repeats)
+                    **config.actor.acting_rules())
         ends[f"{r.reason}{'/' + r.unreachable_reason if r.unreachable_reason else ''} at {len(r.actions)}"] += 1
         for t, (action, waypoint) in enumerate(zip(r.actions, waypoints)):
             row = per_decision.setdefault(t, [[], 0])

@@ -74,8 +74,7 @@ def trace(run, seed: int, env, out=print) -> dict:
                      f"{moved_on}")
 
     r = rollout(env, run.agent, run.qconfig.cameras, seed, explore=False,
-                top_k=run.config.actor.reachable_top_k, on_decision=on_decision,
-                skip_repeats=run.config.actor.skip_repeats)
+                on_decision=on_decision, **run.config.actor.acting_rules())
     held_ever |= env.scene.grasped is not None
     if r.success:
         kind = "success"

@@ -22,9 +22,9 @@ from .action_codec import bins_to_rotation, rotation_to_bins
 from .batch import ObservationBatch
 from .crop import gather_points
 from .exploration import explore_rotation, explore_voxel
-from .reachability import ReachabilityTest, inside_workspace, ranked_candidates
+from .reachability import ReachabilityTest, candidate_pose, inside_workspace, ranked_candidates
 from .repeats import CANDIDATES as MOVING_CANDIDATES
-from .repeats import moving_choice, repeats_pose
+from .repeats import Held, moving_choice, repeats_pose
 from .voxelise import child_bounds, unflatten_index, voxel_centre, voxelise
 
 QFunction = Callable[[torch.Tensor, torch.Tensor], tuple]
@@ -145,12 +145,12 @@ def descend(
         skipped = np.zeros(b, bool)
         separation = max(1, REACH_SEPARATION_DEG // config.rotation_resolution)
         for i in range(b):
-            position, gripper_open = obs.gripper_pose[i, :3], float(obs.gripper_open[i])
-            if not repeats_pose(centre[i], rot[i], int(grip[i]), bounds[i], v, position, held[i], gripper_open):
+            now = Held(obs.gripper_pose[i, :3], held[i], float(obs.gripper_open[i]))
+            if not repeats_pose(centre[i], rot[i], int(grip[i]), bounds[i], v, now):
                 continue
             tests, choice = moving_choice(idx[i], rot[i], int(grip[i]), q_trans[i], q_rot[i], q_grip[i], bounds[i],
-                                          workspace[i], position, held[i], gripper_open, config, separation,
-                                          reachable if checking else None, max(top_k, MOVING_CANDIDATES))
+                                          workspace[i], now, config, separation, reachable if checking else None,
+                                          max(top_k, MOVING_CANDIDATES))
             if checks is not None:
                 checks[i] += tests
             if choice is not None:
@@ -188,8 +188,7 @@ def _reachable_choice(action, q_trans, q_rot, bounds, workspace, held_rotation, 
     inside = inside_workspace(bounds, config.voxel_size, workspace)
     candidates = ranked_candidates(q_trans, q_rot, top_k, separation, inside=inside, fallback_rotation=held_rotation)
     for voxel, bins in zip(*candidates):
-        pose = torch.cat([voxel_centre(voxel, bounds, config.voxel_size).float(),
-                          bins_to_rotation(bins, config.rotation_resolution)]).cpu()
+        pose = candidate_pose(voxel, bins, bounds, config).cpu()
         if torch.allclose(pose, first[:7]):
             continue  # the first choice itself: already known unreachable
         checks += 1

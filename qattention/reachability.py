@@ -25,10 +25,18 @@ from typing import Callable
 import numpy as np
 import torch
 
+from .action_codec import bins_to_rotation
 from .voxelise import unflatten_index, voxel_centre
 
 #: ``reachable(action [8]) -> bool``: can the arm take this next-best pose (xyz, quat xyzw, gripper)?
 ReachabilityTest = Callable[[np.ndarray], bool]
+
+
+def candidate_pose(voxel: torch.Tensor, bins: torch.Tensor, bounds: torch.Tensor, config) -> torch.Tensor:
+    """A last-depth candidate's pose [7] (xyz, quat xyzw): the centre of ``voxel`` in the cube ``bounds``, the
+    rotation of its Euler ``bins``; what the reachability test is asked about, without the gripper."""
+    return torch.cat([voxel_centre(voxel, bounds, config.voxel_size).float(),
+                      bins_to_rotation(bins, config.rotation_resolution).float()])
 
 
 def distinct_top(values: torch.Tensor, m: int, separation: int) -> torch.Tensor:

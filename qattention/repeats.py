@@ -17,33 +17,42 @@ reachability rule.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 
-from .action_codec import bins_to_rotation
-from .reachability import ReachabilityTest, inside_workspace, ranked_candidates
+from .reachability import ReachabilityTest, candidate_pose, inside_workspace, ranked_candidates
 from .voxelise import voxel_centre
 
 #: Candidates looked at when the reachability rule is off (its ``top_k`` is their number otherwise).
 CANDIDATES = 8
 
 
+class Held(NamedTuple):
+    """The pose the gripper holds now, as a choice of the last depth would be compared with it."""
+
+    position: torch.Tensor  #: [3] the gripper's xyz
+    rotation: torch.Tensor  #: [3] the Euler bins of its orientation
+    gripper_open: float  #: 1 open, 0 closed
+
+
 def repeats_pose(centre: torch.Tensor, rotation: torch.Tensor, grip: int, bounds: torch.Tensor, voxel_size: int,
-                 position: torch.Tensor, held_rotation: torch.Tensor, gripper_open: float) -> bool:
+                 held: Held) -> bool:
     """Whether the last depth's choice (voxel ``centre`` [3] of the cube ``bounds`` [6], Euler bins
-    ``rotation`` [3], gripper index ``grip``) is the pose the gripper holds: its ``position`` [3]
-    lies in the chosen voxel, ``held_rotation`` [3] are the same bins, the gripper stays as it is."""
+    ``rotation`` [3], gripper index ``grip``) is the pose ``held``: its position lies in the chosen
+    voxel, its rotation is the same bins, the gripper stays as it is."""
     half_edge = (bounds[3:] - bounds[:3]) / (2 * voxel_size)
-    inside = bool(((centre - position).abs() <= half_edge).all())
-    return inside and bool((rotation == held_rotation).all()) and grip == int(round(float(gripper_open)))
+    inside = bool(((centre - held.position).abs() <= half_edge).all())
+    return inside and bool((rotation == held.rotation).all()) and grip == int(round(held.gripper_open))
 
 
 def moving_choice(voxel: torch.Tensor, rotation: torch.Tensor, grip: int, q_trans: torch.Tensor,
                   q_rot: torch.Tensor, q_grip: torch.Tensor, bounds: torch.Tensor, workspace: torch.Tensor,
-                  position: torch.Tensor, held_rotation: torch.Tensor, gripper_open: float, config,
-                  separation: int, reachable: ReachabilityTest | None = None, k: int = CANDIDATES):
+                  held: Held, config, separation: int, reachable: ReachabilityTest | None = None,
+                  k: int = CANDIDATES):
     """(tests run, (voxel [3], bins [3], grip) or None): the best choice that does not repeat the pose.
 
-    ``voxel``, ``rotation``, ``grip`` are the repeating choice; ``q_trans`` [V, V, V], ``q_rot``
+    ``voxel``, ``rotation``, ``grip`` are the choice that repeats ``held``; ``q_trans`` [V, V, V], ``q_rot``
     [3, bins] and ``q_grip`` [2] the last depth's values for one sample. Candidates are the
     same pose with the gripper toggled, and the ``k`` best voxel and rotation pairs inside the
     ``workspace`` with the gripper as chosen; each is tested for reachability (when a test is
@@ -58,16 +67,14 @@ def moving_choice(voxel: torch.Tensor, rotation: torch.Tensor, grip: int, q_tran
     inside = inside_workspace(bounds, v, workspace)
     for other_voxel, bins in zip(*ranked_candidates(q_trans, q_rot, k, separation, inside=inside)):
         centre = voxel_centre(other_voxel, bounds, v)
-        if not repeats_pose(centre, bins, grip, bounds, v, position, held_rotation, gripper_open):
+        if not repeats_pose(centre, bins, grip, bounds, v, held):
             scored.append((value(other_voxel, bins, grip), other_voxel, bins, grip))
     checks = 0
     for _, cand_voxel, bins, g in sorted(scored, key=lambda s: -s[0]):
         if reachable is not None:
             checks += 1
-            pose = torch.cat([voxel_centre(cand_voxel, bounds, v).float(),
-                              bins_to_rotation(bins, config.rotation_resolution).float(),
-                              torch.tensor([float(g)], device=bins.device)])
-            if not reachable(pose.cpu().numpy()):
+            pose = torch.cat([candidate_pose(cand_voxel, bins, bounds, config).cpu(), torch.tensor([float(g)])])
+            if not reachable(pose.numpy()):
                 continue
         return checks, (cand_voxel, bins, g)
     return checks, None

@@ -5,7 +5,7 @@ import torch
 
 from qattention import ObservationBatch, QAttentionConfig, descend
 from qattention.action_codec import bins_to_rotation
-from qattention.repeats import repeats_pose
+from qattention.repeats import Held, repeats_pose
 from qattention.synthetic import observation_arrays
 
 CFG = QAttentionConfig(image_crop=0)
@@ -44,10 +44,10 @@ def test_the_greedy_choice_at_the_gripper_repeats_its_pose_and_the_rule_is_off_b
     assert greedy.repeat_skipped is None
     assert greedy.rot_grip_indices[0].tolist() == [*HELD, 1]
     last = torch.from_numpy(greedy.bounds[0, -1])
-    assert repeats_pose(torch.from_numpy(greedy.action[0, :3]), torch.tensor(HELD), 1, last, CFG.voxel_size,
-                        obs.gripper_pose[0, :3], torch.tensor(HELD), 1.0)
+    held = Held(obs.gripper_pose[0, :3], torch.tensor(HELD), 1.0)
+    assert repeats_pose(torch.from_numpy(greedy.action[0, :3]), torch.tensor(HELD), 1, last, CFG.voxel_size, held)
     assert not repeats_pose(torch.from_numpy(greedy.action[0, :3]), torch.tensor(HELD), 0, last, CFG.voxel_size,
-                            obs.gripper_pose[0, :3], torch.tensor(HELD), 1.0)  # closing the gripper is a move
+                            held)  # closing the gripper is a move
 
 
 def test_a_close_second_gripper_value_turns_a_repeat_into_a_grasp():

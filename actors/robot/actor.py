@@ -104,8 +104,7 @@ def run(setup: RobotSetup, ctx: RoleContext) -> int:
             seed = episode_seed(ctx.seed, ctx.instance, episode_id)
             try:
                 r = rollout(env, policy.agent, qconfig.cameras, seed, explore=True, stop=ctx.stop,
-                            top_k=config.reachable_top_k, on_decision=on_decision,
-                            skip_repeats=config.skip_repeats)
+                            on_decision=on_decision, **config.acting_rules())
             except OperatorStopped as why:
                 dropped["operator_stops"] += int(channel.paused)
                 log.info("episode dropped: %s", why)
