@@ -18,7 +18,12 @@ steps, learner step), then the variant's slowest seed: the headline, since a lev
 the worst seed gets there sooner. ``samples/insert`` is the replay's sampled / inserted
 transitions over the whole run (the first ``min_size_to_sample`` inserts included, so a held
 target reads a little under itself); ``--stop-at`` ends each run once it holds a rate, so
-``final success`` is then the rate it held, not the budget's end.
+``end`` is then the rate it held and when, not the budget's end. A seed whose run directory is
+gone (another machine) is read back from its CSV in the results dir.
+
+Under the table, a second one holds every other lever measured on the task and preset, from its
+per-seed CSVs, so an ablation of one lever never drops the earlier levers' rows; those ran under
+their own budgets and stop rules (``end`` says where each seed stopped).
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from pathlib import Path
 from typing import Mapping, Optional, Sequence
 
 import learning  # bench/learning.py: runs and their seeds
-from learning_curves import Curve, first_reaching, when_reached
+from learning_curves import Curve, first_reaching, read_curve_csv, when_reached
 
 #: Coarse-to-fine depth and voxel size, the paper's study written as (voxels per axis at each depth): a depth-d
 #: cube is centred on the voxel chosen before it, half-width bounds_offset[d-1]. Each grid spells out all three
@@ -177,10 +182,10 @@ def variant_args(args: argparse.Namespace, variant: str) -> argparse.Namespace:
 
 
 def seed_curves(args: argparse.Namespace, variant: str) -> dict[int, Curve]:
-    """The variant's seeds that have evaluations (each run's eval.csv).
+    """The variant's seeds that have evaluations: each run's eval.csv, else the seed's CSV in the results dir.
 
-    Each curve's last point also gets the samples per insert the replay had reached by the
-    learner's last logged batch (``samples_per_insert``), the ratio the replay-ratio levers turn.
+    Each curve read from a run also gets, on its last point, the samples per insert the replay had reached
+    by the learner's last logged batch (``samples_per_insert``), the ratio the replay-ratio levers turn.
     """
     parsed = variant_args(args, variant)
     curves = learning.load_seeds(parsed)
@@ -189,7 +194,20 @@ def seed_curves(args: argparse.Namespace, variant: str) -> dict[int, Curve]:
         ratio = achieved_samples_per_insert(Path(args.runs_dir) / run_ids[seed])
         if ratio is not None:
             curve[-1]["samples_per_insert"] = ratio
-    return curves
+    recorded = recorded_curves(args.results_dir, args.task, args.preset, [variant]).get(variant, {})
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    return dict(sorted({**{s: c for s, c in recorded.items() if s in seeds}, **curves}.items()))
+
+
+def recorded_curves(results_dir: str, task: str, preset: str, variants: Sequence[str]) -> dict[str, dict[int, Curve]]:
+    """The named levers' per-seed curves written to the results dir (``<task>-<preset>-<variant>-s<seed>.csv``)."""
+    prefix = f"{task}-{preset}-"
+    found: dict[str, dict[int, Curve]] = {}
+    for path in sorted(Path(results_dir).glob(f"{prefix}*-s*.csv")):
+        variant, _, seed = path.stem[len(prefix):].rpartition("-s")
+        if variant in variants and seed.isdigit():
+            found.setdefault(variant, {})[int(seed)] = read_curve_csv(path)
+    return found
 
 
 def achieved_samples_per_insert(run_dir: Path) -> Optional[float]:
@@ -213,14 +231,14 @@ def slowest(curves: Sequence[Curve], threshold: float) -> Optional[dict]:
 def table(results: Mapping[str, Mapping[int, Curve]], thresholds: Sequence[float]) -> str:
     """Markdown: per variant, each seed's time to each threshold, then the slowest seed's."""
     header = (["variant", "seed"] + [f"first ≥ {100 * t:g} %" for t in thresholds]
-              + ["final success", "evals", "samples/insert"])
+              + ["end", "evals", "samples/insert"])
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for variant, by_seed in results.items():
         for seed, curve in sorted(by_seed.items()):
             cells = [variant, str(seed)] + [when_reached(first_reaching(curve, t)) for t in thresholds]
             ratio = curve[-1].get("samples_per_insert")
             cells += [
-                f"{100 * curve[-1]['success_rate']:.0f} %",
+                f"{100 * curve[-1]['success_rate']:.0f} % at {curve[-1]['minutes']:.1f} min",
                 str(len(curve)),
                 "" if ratio is None else f"{ratio:.2f}",
             ]
@@ -276,11 +294,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             parsed = variant_args(args, variant)
             learning.write_results(parsed, by_seed, learning.combine(parsed, by_seed))
     text = table({v: c for v, c in results.items() if c}, args.thresholds)
+    others = recorded_curves(args.results_dir, args.task, args.preset,
+                             [v for v in LEVERS if v not in args.variants])
     out = Path(args.results_dir) / f"ablation-{args.task}-{args.preset}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     early = (f", stopped once {args.stop_held} evaluations in a row reached {100 * args.stop_at:g} %"
              if args.stop_at is not None else "")
-    out.write_text(f"{args.task}, preset {args.preset}, {args.minutes:g} min per run{early}\n\n{text}\n")
+    body = f"{args.task}, preset {args.preset}, {args.minutes:g} min per run{early}\n\n{text}\n"
+    if others:
+        body += (f"\nThe other levers measured on {args.task} with this preset, from their per-seed CSVs "
+                 f"(each with the budget and stop rule it ran under):\n\n{table(others, args.thresholds)}\n")
+    out.write_text(body)
     print(text)
     print(f"wrote {out}")
     return learning.exit_code(failed)

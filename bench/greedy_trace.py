@@ -102,8 +102,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from actors.panda_env import PandaEnv
+    from deploy.config_loader import ConfigError
 
-    run = load_trained_run(args.run_dir, acting=True, overrides=tuple(args.set))
+    try:
+        run = load_trained_run(args.run_dir, acting=True, overrides=tuple(args.set))
+    except ConfigError as exc:  # a --set the run's config refuses: one line, before any episode
+        parser.error(f"--set: {exc}")
     if run is None:
         return 1
     env = PandaEnv(run.config.sim)

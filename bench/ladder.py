@@ -10,7 +10,8 @@ only where the task needs one, a named per-task entry (config overrides with the
 like the paper's per-task cameras). Every other setting is the preset's. Each seed is one
 ``bench/learning.py --tag ladder`` run, stopped once its last ``--stop-held`` evaluations reached
 the bar: resumable (rerun the command; a held or spent seed is skipped), its curve written to
-``bench/results/<task>-<preset>-ladder-s<seed>.csv`` as soon as it ends. Seeds interleave (seed 1
+``bench/results/<task>-<preset>-ladder-s<seed>.csv`` as soon as it ends. A seed with that CSV is
+recorded and never run again, on this machine or another (delete the CSV to run it anew). Seeds interleave (seed 1
 of every task first), so one diagnostic pass over the ladder comes before any second seed.
 
 Outputs, read from those per-seed CSVs (so seeds run on other days still combine):
@@ -106,15 +107,16 @@ def learning_args(args: argparse.Namespace, rung: Rung, seed: int) -> list[str]:
     return argv
 
 
+def seed_csv(args: argparse.Namespace, task: str, seed: int) -> Path:
+    """Where a seed's curve is recorded once its run ends."""
+    return Path(args.results_dir) / f"{task}-{args.preset}-{TAG}-s{seed}.csv"
+
+
 def seed_curves(args: argparse.Namespace, task: str) -> dict[int, learning_curves.Curve]:
     """The per-seed CSVs of this rung under the results dir (seeds in range only)."""
-    stem = Path(args.results_dir) / f"{task}-{args.preset}-{TAG}"
-    curves = {}
-    for seed in range(args.first_seed, args.first_seed + args.seeds):
-        path = Path(f"{stem}-s{seed}.csv")
-        if path.exists():
-            curves[seed] = learning_curves.read_curve_csv(path)
-    return curves
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    return {seed: learning_curves.read_curve_csv(seed_csv(args, task, seed)) for seed in seeds
+            if seed_csv(args, task, seed).exists()}
 
 
 def run_config(args: argparse.Namespace, rung: Rung):
@@ -253,7 +255,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 0
     failed = [] if args.summary else learning.run_each(
         (f"{task} seed {seed}", learning_args(args, RUNGS[task], seed))
-        for seed in range(args.first_seed, args.first_seed + args.seeds) for task in args.tasks)
+        for seed in range(args.first_seed, args.first_seed + args.seeds) for task in args.tasks
+        if not seed_csv(args, task, seed).exists())
     if failed is None:
         return 130
     print(write_results(args))

@@ -50,7 +50,7 @@ def test_the_table_times_each_seed_and_heads_with_the_slowest():
         "base": {1: curve((1.0, 100, 0.0), (5.0, 500, 0.95)), 2: curve((1.0, 100, 0.0), (6.0, 700, 0.4))},
     }
     rows = ablation.table(results, [0.5, 0.9]).splitlines()
-    assert rows[0] == "| variant | seed | first ≥ 50 % | first ≥ 90 % | final success | evals | samples/insert |"
+    assert rows[0] == "| variant | seed | first ≥ 50 % | first ≥ 90 % | end | evals | samples/insert |"
     slowest_default = next(r for r in rows if r.startswith("| **default** | slowest"))
     assert "6.0 min, 700 env steps" in slowest_default.split("|")[4] and "5.0 min" in slowest_default.split("|")[3]
     slowest_base = next(r for r in rows if r.startswith("| **base** | slowest"))
@@ -120,3 +120,21 @@ def test_each_variants_aggregate_holds_every_seed_of_it(tmp_path, monkeypatch):
         rows = list(csv.DictReader(f))
     assert {int(r["seeds"]) for r in rows} == {2} and len(rows) == 5  # seed 1 held 100 % to the end
     assert [float(r["success_rate"]) for r in rows] == [0.0, 0.5, 0.8, 0.9, 0.95]
+
+
+def test_a_later_ablation_keeps_the_earlier_levers_rows_and_reads_seeds_back_from_their_csvs(tmp_path):
+    """The table file is rewritten by every ablation: levers not named now come back from their seed CSVs,
+    and so do the named lever's seeds once their run directories are gone (another machine)."""
+    from learning_curves import curve_fields, write_csv
+
+    results = tmp_path / "results"
+    for variant, rates in (("no-margin", (0.0, 0.6, 0.9)), ("base", (0.0, 0.2))):
+        points = curve(*((1.0 + k, 100 * k, r) for k, r in enumerate(rates)))
+        write_csv(results / f"push_button-cpu-small-{variant}-s1.csv", points, curve_fields(points))
+    write_csv(results / "push_button-cpu-small-base.csv", points, curve_fields(points))  # an aggregate: not a seed
+    argv = ["--task", "push_button", "--variants", "no-margin", "--seeds", "1", "--thresholds", "0.5",
+            "--runs-dir", str(tmp_path / "runs"), "--results-dir", str(results), "--summary"]
+    assert ablation.main(argv) == 0
+    now, _, earlier = (results / "ablation-push_button-cpu-small.md").read_text().partition("The other levers")
+    assert "| no-margin | 1 | 2.0 min, 100 env steps, step 50 | 90 % at 3.0 min | 3 |" in now
+    assert "| base | 1 | not reached | 20 % at 2.0 min | 2 |" in earlier and "no-margin" not in earlier

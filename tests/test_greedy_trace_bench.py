@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
@@ -60,3 +61,12 @@ def test_a_trace_plays_the_evaluators_seed_beside_its_demo(tmp_path):
     decisions = lines[1].strip().split(" | ")
     assert 1 <= len(decisions) <= run.qconfig.episode_length
     assert all(d.split()[0] in {"open", "shut"} for d in decisions)  # reach_target grasps nothing: never "+held"
+
+
+def test_a_set_the_config_refuses_is_one_line_before_any_episode(tmp_path, capsys):
+    run_dir = finished_run(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        greedy_trace.main([str(run_dir), "--set", "actor.skip_repeat=true"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "Traceback" not in err
+    assert err.splitlines()[-1].endswith("--set: actor.skip_repeat: unknown key (did you mean 'skip_repeats'?)")

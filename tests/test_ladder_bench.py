@@ -79,3 +79,14 @@ def test_an_unknown_task_is_one_line_before_anything_runs(capsys):
     with pytest.raises(SystemExit) as exit_:
         ladder.parse_args(["--tasks", "lift_lid", "fold_laundry"])
     assert exit_.value.code == 2 and "unknown task(s) fold_laundry" in capsys.readouterr().err
+
+
+def test_a_recorded_seed_is_not_run_again_even_where_its_run_directory_is_gone(tmp_path, monkeypatch):
+    """The CSVs are the record (committed); the runs dir is this machine's scratch."""
+    results = tmp_path / "results"
+    write_seed(results, "push_button", 1, [0.0, 0.95, 1.0], 1.0)
+    ran = []
+    monkeypatch.setattr(ladder.learning, "run_each", lambda runs: ran.extend(name for name, _ in runs) or [])
+    assert ladder.main(["--tasks", "push_button", "--seeds", "2", "--runs-dir", str(tmp_path / "runs"),
+                        "--results-dir", str(results)]) == 0
+    assert ran == ["push_button seed 2"]
