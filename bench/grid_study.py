@@ -13,7 +13,8 @@ answers which grid gets there first in wall-clock minutes on this machine.
 Each grid is the task's ladder entry with only the grid changed (bench/ablation.py's ``lid-grid-*``
 for lift_lid, ``release-grid-*`` for put_in_bin), each seed one ``bench/learning.py`` run stopped once
 it holds the threshold, its curve in ``bench/results/<task>-<preset>-<entry>-grid-<grid>-s<seed>.csv``.
-A seed whose CSV is there is not run again, so the command resumes and seeds run on other days combine.
+A seed whose CSV is there is not run again, so the command resumes and seeds run on other days combine;
+the table holds every grid with a seed CSV, not only those named, and keeps the update costs timed before.
 
 Writes ``bench/results/grid_study-<task>.{md,csv}``: per grid its voxels per depth, the last depth's
 voxel edge, what an update costs (the updates per second each run achieved, and with ``--costs`` the
@@ -25,6 +26,7 @@ worst seed's minutes: the first is the one to choose for this CPU.
 from __future__ import annotations
 
 import argparse
+import csv
 import statistics
 import sys
 from pathlib import Path
@@ -76,9 +78,10 @@ def worst(rows: Sequence[dict]) -> dict:
 
 
 def study_rows(args: argparse.Namespace, costs: dict[str, float]) -> dict[str, list[dict]]:
-    """Per grid with any seed, its seeds' rows, the worst first; grids by their worst seed's minutes."""
+    """Per grid with any seed (named now or not), its seeds' rows, the worst first; grids by their worst seed's
+    minutes."""
     by_grid = {}
-    for grid in args.grids:
+    for grid in GRIDS:
         cfg = grid_config(args.task, grid)
         rows = []
         for seed in range(args.first_seed, args.first_seed + args.seeds):
@@ -136,9 +139,19 @@ def time_updates(grids: Sequence[str]) -> dict[str, float]:
     return costs
 
 
+def recorded_costs(path: Path) -> dict[str, float]:
+    """The update costs an earlier ``--costs`` wrote into the study's CSV (empty where none was timed)."""
+    try:
+        with path.open(newline="") as f:
+            return {row["grid"]: float(row["update_s"]) for row in csv.DictReader(f) if row.get("update_s")}
+    except (FileNotFoundError, KeyError, ValueError):
+        return {}
+
+
 def write_results(args: argparse.Namespace, costs: dict[str, float]) -> str:
-    by_grid = study_rows(args, costs)
+    """The study's table and CSV: every grid with a seed CSV, the costs timed now or else those recorded."""
     results = Path(args.results_dir)
+    by_grid = study_rows(args, {**recorded_costs(results / f"grid_study-{args.task}.csv"), **costs})
     learning_curves.write_csv(results / f"grid_study-{args.task}.csv",
                               [r for rows in by_grid.values() for r in rows], CSV_FIELDS)
     text = table(by_grid, args.threshold)
