@@ -69,3 +69,15 @@ def test_each_run_is_the_entrys_grid_lever_stopped_at_the_threshold():
     argv = grid_study.learning_args(args, grid_study.variant("put_in_bin", "16-16"), 2)
     assert argv[argv.index("--tag") + 1] == "release-grid-16-16" and argv[argv.index("--stop-at") + 1] == "0.7"
     assert "qattention.voxel_size=16" in argv and "learner.acting_average=0.99" in argv
+
+
+def test_a_study_of_one_grid_keeps_the_other_grids_rows_and_the_update_costs_timed_before(tmp_path):
+    write_seed(tmp_path, "16-16", 1, [0.0, 0.9], 2.0)
+    (tmp_path / "grid_study-lift_lid.csv").write_text(  # an earlier --costs run's record
+        "grid,voxels,update_s,seed\n16-16,\"(16,16)\",0.88,1\n8-8,\"(8,8)\",0.18,1\n")
+    write_seed(tmp_path, "8-8", 1, [0.0, 0.5, 0.85], 1.0)  # the grid studied now
+    assert grid_study.main(["--summary", "--results-dir", str(tmp_path), "--seeds", "1", "--grids", "8-8"]) == 0
+    rows = [line for line in (tmp_path / "grid_study-lift_lid.md").read_text().splitlines()
+            if line.startswith("| **")]
+    assert [row.split("|")[1].strip() for row in rows] == ["**(8,8)**, 1 seed", "**(16,16)**, 1 seed"]
+    assert [row.split("|")[3].strip() for row in rows] == ["0.18", "0.88"]
