@@ -6,7 +6,8 @@ Loads the run's newest learner checkpoint with the weights its evaluator acted w
 weights' average where the run used one) and plays the evaluator's seeds as it does (greedy, the
 same reachable top-K). For each seed it first records the scripted demo, for its keyframe poses
 and for where the object the demo grasps comes to rest. Per greedy decision it prints the gripper
-command, whether the hand holds the object, and the nearest demo keyframe with its distance; per
+command, whether the hand holds the object, the nearest demo keyframe with its distance, and the
+gripper's value margin ``g`` (open's value less closed's: how sure the gripper head was); per
 episode, how it ended and where the object rests against the demo's resting place. The summary
 sorts the failures: never grasped, still held at the end, let go off the demo's place (by how
 much), unreachable. A plateau whose failures all let go a few centimetres off is a precision
@@ -70,8 +71,9 @@ def trace(run, seed: int, env, out=print) -> dict:
         held = env.scene.grasped is not None
         held_ever |= held
         moved_on = " (moved on)" if act.repeat_skipped is not None and act.repeat_skipped[0] else ""
+        shut_q, open_q = act.gripper_q[0]
         lines.append(f"{'open' if pose[7] > 0.5 else 'shut'}{'+held' if held else ''} k{k + 1} {100 * gaps[k]:.1f}"
-                     f"{moved_on}")
+                     f" g{open_q - shut_q:+.2f}{moved_on}")
 
     r = rollout(env, run.agent, run.qconfig.cameras, seed, explore=False,
                 on_decision=on_decision, **run.config.actor.acting_rules())
@@ -112,7 +114,8 @@ def main(argv=None) -> int:
         return 1
     env = PandaEnv(run.config.sim)
     print(f"{run.config.sim.task}, learner step {run.step}, acting weights; per decision: gripper (+held when "
-          f"the hand holds something), the nearest demo keyframe and its distance (cm), '(moved on)' where a repeat "
+          f"the hand holds something), the nearest demo keyframe and its distance (cm), g: open's value less "
+          f"closed's, '(moved on)' where a repeat "
           f"of the gripper's pose gave way (actor.skip_repeats)" + (f"; with {' '.join(args.set)}" if args.set else ""))
     ends = []
     try:

@@ -50,6 +50,8 @@ class ActResult:
     reach_replaced: np.ndarray | None = None  #: bool [B] the first choice was unreachable and a candidate replaced it
     #: bool [B] the choice repeated the gripper's pose and the best one that moves replaced it (None: rule off)
     repeat_skipped: np.ndarray | None = None
+    #: float32 [B, 2] the last depth's gripper values, index 0 closed and 1 open (what a diagnosis of the grasp reads)
+    gripper_q: np.ndarray | None = None
 
     def replay_elements(self) -> dict[str, np.ndarray]:
         """The named arrays to store with the observation (keys of ``TransitionBatch``)."""
@@ -169,6 +171,7 @@ def descend(
         reach_checks=checks,
         reach_replaced=replaced,
         repeat_skipped=skipped,
+        gripper_q=np_(q_grip.float()),
     )
 
 

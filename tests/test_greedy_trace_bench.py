@@ -61,6 +61,9 @@ def test_a_trace_plays_the_evaluators_seed_beside_its_demo(tmp_path):
     decisions = lines[1].strip().split(" | ")
     assert 1 <= len(decisions) <= run.qconfig.episode_length
     assert all(d.split()[0] in {"open", "shut"} for d in decisions)  # reach_target grasps nothing: never "+held"
+    for d in decisions:  # the gripper head's margin agrees with the command it gave (greedy: no exploration)
+        margin = float(d.split()[3].removeprefix("g"))
+        assert margin >= 0 if d.split()[0] == "open" else margin <= 0
 
 
 def test_a_set_the_config_refuses_is_one_line_before_any_episode(tmp_path, capsys):
