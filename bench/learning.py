@@ -48,6 +48,7 @@ from learning_curves import (
     held,
     plot,
     plot_seeds,
+    read_curve_csv,
     read_eval,
     summarise,
     write_csv,
@@ -111,21 +112,37 @@ def seed_run_ids(args: argparse.Namespace) -> dict[int, str]:
 
 
 def load_seeds(args: argparse.Namespace) -> dict[int, Curve]:
-    """Curves of the seeds in range that have evaluations; the others are named and left out."""
+    """Curves of the seeds in range: each run's evaluations, else the seed's CSV in the results dir.
+
+    The CSV is the record (committed); a run directory is one machine's scratch, gone on the next.
+    Seeds with neither are named and left out.
+    """
     curves: dict[int, Curve] = {}
     for seed, run_id in seed_run_ids(args).items():
-        curve = read_eval(Path(args.runs_dir) / run_id)
+        recorded = Path(args.results_dir) / f"{results_stem(args)}-s{seed}.csv"
+        curve = read_eval(Path(args.runs_dir) / run_id) or (read_curve_csv(recorded) if recorded.exists() else [])
         if curve:
             curves[seed] = curve
         else:
-            print(f"{run_id}: no evaluations, left out of the aggregate")
+            print(f"{run_id}: no evaluations and no {recorded.name}, left out of the aggregate")
     return curves
 
 
-def held_seeds(args: argparse.Namespace, seeds) -> list[bool]:
-    """Per seed, whether the bench stopped its run because it held its rate (see ``aggregate``)."""
+def held_seeds(args: argparse.Namespace, curves: Mapping[int, Curve]) -> list[bool]:
+    """Per seed, whether the bench stopped its run because it held its rate (see ``aggregate``).
+
+    The run's budget file says so; a seed read back from its CSV (its run directory gone) held if
+    its curve holds ``--stop-at`` as the stopping rule reads it.
+    """
     run_ids = seed_run_ids(args)
-    return [load_budget(Path(args.runs_dir) / run_ids[seed]).held_rate is not None for seed in seeds]
+    flags = []
+    for seed, curve in curves.items():
+        run_dir = Path(args.runs_dir) / run_ids[seed]
+        if run_dir.is_dir():
+            flags.append(load_budget(run_dir).held_rate is not None)
+        else:
+            flags.append(args.stop_at is not None and held(curve, args.stop_at, args.stop_held))
+    return flags
 
 
 def combine(args: argparse.Namespace, curves: Mapping[int, Curve]) -> Curve:

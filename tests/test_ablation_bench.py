@@ -16,9 +16,9 @@ _spec.loader.exec_module(ablation)
 
 
 def curve(*points: tuple[float, int, float]) -> list[dict]:
-    """(minutes, env steps, success) per evaluation, 50 updates apart."""
-    return [{"minutes": m, "env_steps": s, "learner_step": 50 * k, "success_rate": r}
-            for k, (m, s, r) in enumerate(points)]
+    """(minutes, env steps, success) per evaluation, 50 updates apart, 20 episodes each."""
+    return [{"minutes": m, "env_steps": s, "learner_step": 50 * k, "weights_version": 1 + 5 * k, "success_rate": r,
+             "episodes": 20} for k, (m, s, r) in enumerate(points)]
 
 
 @pytest.mark.parametrize("variant", list(ablation.LEVERS))
@@ -138,3 +138,23 @@ def test_a_later_ablation_keeps_the_earlier_levers_rows_and_reads_seeds_back_fro
     now, _, earlier = (results / "ablation-push_button-cpu-small.md").read_text().partition("The other levers")
     assert "| no-margin | 1 | 2.0 min, 100 env steps, step 50 | 90 % at 3.0 min | 3 |" in now
     assert "| base | 1 | not reached | 20 % at 2.0 min | 2 |" in earlier and "no-margin" not in earlier
+
+
+def test_a_summary_combines_seeds_from_other_machines_and_carries_the_one_that_held(tmp_path):
+    """Seeds 1 and 3 ran elsewhere (only their CSVs are here): the aggregate holds both, and seed 1, which
+    held 90 % twice as ``--stop-at`` reads it, keeps 90 % while seed 3 runs on."""
+    import csv
+
+    from learning_curves import curve_fields, write_csv
+
+    results = tmp_path / "results"
+    for seed, rates in ((1, (0.0, 0.9, 0.95)), (3, (0.0, 0.2, 0.5, 0.9, 0.9))):
+        points = curve(*((1.0 + k, 100 * k, r) for k, r in enumerate(rates)))
+        write_csv(results / f"push_button-cpu-small-no-margin-s{seed}.csv", points, curve_fields(points))
+    argv = ["--task", "push_button", "--variants", "no-margin", "--seeds", "3", "--stop-at", "0.9",
+            "--stop-held", "2", "--runs-dir", str(tmp_path / "runs"), "--results-dir", str(results), "--summary"]
+    assert ablation.main(argv) == 0
+    with (results / "push_button-cpu-small-no-margin.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["seeds"]) for r in rows] == [2] * 5 and [int(r["carried"]) for r in rows] == [0, 0, 0, 1, 1]
+    assert [float(r["success_rate"]) for r in rows] == [0.0, 0.2, 0.5, 0.9, 0.9]  # the worst seed at each point
