@@ -192,8 +192,10 @@ def test_the_publisher_refuses_non_finite_weights(sessions):
         assert publisher.publish(W, 1, learner_step=1) > 0
         assert publisher.publish({"net.w": torch.tensor([1.0, float("nan")])}, 2, learner_step=2) == 0
         assert publisher.refused == 1 and publisher.version == 1
-        follower.fetch_latest(timeout_s=5.0)
-        assert follower.newer().version == 1  # the queryable still answers with the last good version
+        # the queryable still answers with the last good version (asked again until the follower's session has
+        # learnt of the queryable: a query sent before that finds no one to answer it)
+        update = wait_for(lambda: follower.fetch_latest(timeout_s=1.0) or follower.newer(), 15, "the queryable's reply")
+        assert update.version == 1
         with pytest.raises(ValueError):
             publisher.publish(W, 1, learner_step=3)  # a version is never sent twice
     finally:
