@@ -162,6 +162,11 @@ LEVERS["release-skip-repeats"] = (*ENTRY_LEVERS["release"], *GRID_8_8_8, "actor.
 #: second and third thousand updates against the rule's 29-34 %, 25 % of evaluation episodes unreachable; stopped
 #: at 26 min.)
 LEVERS["release-gamma-0.9-skip-repeats"] = (*LEVERS["release-gamma-0.9"], "actor.skip_repeats=true")
+#: ... with the gripper and rotation read also from the final features at the translation Q's best voxel (a change to
+#: the paper's head, q_attention.best_voxel_features): at 4,915 updates of the rule's seed 2, 6 of 20 greedy
+#: episodes never grasped, reaching the grasp pose 0.7-2.6 cm from the demo's with "open" ahead by +0.11 to +0.26,
+#: where the 8 successes chose "shut" there by -0.08 to -0.23; the head saw only the whole cube's features.
+LEVERS["release-skip-repeats-best-voxel"] = (*LEVERS["release-skip-repeats"], "qattention.head_reads_best_voxel=true")
 #: put_item_in_drawer's entry with the finer last voxel (1.25 cm, the last cube 10 cm wide, at the same update cost):
 #: on lift_lid it took the worst of 3 seeds to 80 % in 200 updates against (8,8,8)'s 350 (bench/grid_study.py);
 #: the drawer's worst seed needed more updates than its hour gave (35 % at best in 4,820). (Seed 3: 50 % first at

@@ -25,6 +25,9 @@ class QAttentionConfig:
     rotation_resolution: int = 5  #: degrees per Euler bin, a divisor of 360 (72 bins per axis at 5)
     kernels: int = 64  #: encoder width K (levels K, 2K, 4K), >= 1; reference 64
     head_width: int = 128  #: width of the two hidden layers of the rotation/gripper MLP, >= 1; reference 128
+    #: the rotation/gripper head also reads the last depth's final features at the translation Q's best voxel, beside
+    #: the whole cube's soft-argmax and max features (the reference's only input); a lever, off as the reference
+    head_reads_best_voxel: bool = False
     padding: Literal["zeros", "replicate"] = "replicate"  #: conv padding mode; reference 'replicate'
     #: bf16 autocast of the networks (loss stays fp32); "auto" = on where the device has native bf16 (precision.py)
     bf16: bool | Literal["auto"] = "auto"

@@ -2,7 +2,8 @@
 
 Inception encoder (K, 2K, 4K, ... channels, one level per halving down to 4^3), proprio
 embedding tiled over the grid, inception-upsample decoder with skips, per-voxel Q. The last
-depth adds the rotation/gripper head on spatial-soft-argmax + global-max features. With
+depth adds the rotation/gripper head on spatial-soft-argmax + global-max features (optionally also
+the features at the translation Q's best voxel, ``best_voxel_features``). With
 K=64, head 128, V=16 the parameter counts equal the reference's (879,553 / 1,186,459).
 Configurable: width, head width, padding mode; bf16 is applied by the caller (autocast).
 """
@@ -93,6 +94,19 @@ def spatial_soft_argmax(x: torch.Tensor, temperature: float = 0.01) -> torch.Ten
     return (p @ pos).reshape(b, 3 * c)
 
 
+def best_voxel_features(features: torch.Tensor, q_trans: torch.Tensor) -> torch.Tensor:
+    """[B, C, V, V, V] features at each row's best voxel of ``q_trans`` [B, V, V, V] -> [B, C] (fp32).
+
+    The whole cube's soft-argmax and max features say where things are, not what lies at the pose the
+    translation head picks; whether to shut the gripper there (on the bottle, or short of it) is a
+    property of that spot. The choice is detached, so the head stays a function of the state alone
+    (the TD target's maximum over rotations and gripper is unchanged in kind).
+    """
+    b, c = features.shape[:2]
+    best = q_trans.detach().reshape(b, -1).argmax(-1)
+    return features.reshape(b, c, -1).gather(2, best[:, None, None].expand(b, c, 1))[..., 0].float()
+
+
 class QAttentionNet(nn.Module):
     """Q-values for every voxel (and, if ``rotation_bins``, for rotation bins and gripper)."""
 
@@ -104,11 +118,13 @@ class QAttentionNet(nn.Module):
         rotation_bins: int = 0,
         head_width: int = 128,
         low_dim_size: int = LOW_DIM_SIZE,
+        head_reads_best_voxel: bool = False,
     ):
         super().__init__()
         k, mid = kernels, kernels // 2
         levels = max(int(math.log2(voxel_size)) - 2, 1)  # halvings until 4^3 (V=16: 2, V=32: 3, V=8: 1)
         self.rotation_bins = rotation_bins
+        self.head_reads_best_voxel = head_reads_best_voxel
         self.input = Inception(CHANNELS, k, mid, padding)
         self.proprio = Dense(low_dim_size, k)
         self.down = nn.ModuleList([Inception(2 * k, k, mid, padding)])
@@ -125,7 +141,7 @@ class QAttentionNet(nn.Module):
         self.final = Conv3d(2 * k, k, 3, padding)
         self.q_trans = Conv3d(k, 1, 3, padding, activation=False)
         if rotation_bins:
-            feats = 4 * (sum(widths) + k)
+            feats = 4 * (sum(widths) + k) + (k if head_reads_best_voxel else 0)
             self.head = nn.Sequential(
                 Dense(feats, head_width), Dense(head_width, head_width), Dense(head_width, 3 * rotation_bins + 2, False)
             )
@@ -150,6 +166,8 @@ class QAttentionNet(nn.Module):
         feats = []
         for t in [*skips, f]:
             feats += [spatial_soft_argmax(t), torch.amax(t, dim=(2, 3, 4)).float()]
+        if self.head_reads_best_voxel:
+            feats.append(best_voxel_features(f, q_trans))
         q_rg = self.head(torch.cat(feats, 1)).float()
         return q_trans, q_rg
 
@@ -163,6 +181,7 @@ def build_networks(config) -> list[QAttentionNet]:
             config.padding,
             config.rotation_bins if d == config.depths - 1 else 0,
             config.head_width,
+            head_reads_best_voxel=config.head_reads_best_voxel,
         )
         for d in range(config.depths)
     ]

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from qattention import QAttentionConfig, build_networks, cpu_small, paper
-from qattention.q_attention import QAttentionNet
+from qattention.q_attention import QAttentionNet, best_voxel_features
 
 
 def n_params(net):
@@ -68,3 +68,21 @@ def test_bf16_auto_is_on_only_where_the_device_has_native_bf16():
     assert use_bf16(True, cpu) and not use_bf16(False, cpu)  # an explicit choice is kept
     with pytest.raises(ValueError, match="bf16"):
         QAttentionConfig(bf16="yes")
+
+
+def test_the_head_can_read_the_features_at_the_translation_q_best_voxel():
+    features = torch.arange(2 * 3 * 64, dtype=torch.float32).reshape(2, 3, 4, 4, 4)
+    q_trans = torch.zeros(2, 4, 4, 4)
+    q_trans[0, 1, 2, 3] = 1.0
+    q_trans[1, 3, 0, 0] = 1.0
+    picked = best_voxel_features(features, q_trans)
+    assert torch.equal(picked, torch.stack([features[0, :, 1, 2, 3], features[1, :, 3, 0, 0]]))
+
+    cfg = QAttentionConfig(voxel_size=8, kernels=8, head_width=16)
+    torch.manual_seed(0)
+    plain = build_networks(cfg)[1]
+    torch.manual_seed(0)
+    reading = build_networks(cfg.replace(head_reads_best_voxel=True))[1]
+    assert n_params(reading) == n_params(plain) + 8 * 16  # one more input of K=8 to the head's first layer
+    q, rg = reading(torch.randn(2, 10, 8, 8, 8), torch.randn(2, 11))
+    assert q.shape == (2, 8, 8, 8) and rg.shape == (2, 3 * 72 + 2) and torch.isfinite(rg).all()
