@@ -178,7 +178,7 @@ LEVERS["drawer-timed-fine"] = (*(lever for lever in LEVERS["drawer-entry-timed"]
 #: rendered by three cameras, planned and recorded) is never idle, and took as much of the CPU as the learner and the
 #: actor (61, 65 and 66 % of the 200 % by `ps`, stack_wine at 22 min); the drawer's seeds needed 4,250-4,980
 #: updates for the bar and the learner ran 1.34-1.56 updates/s. Training is unchanged; the curve is coarser.
-LEVERS["drawer-entry-timed-eval-100"] = (*LEVERS["drawer-entry-timed"], "actor.eval_every_versions=10")
+LEVERS["drawer-timed-eval-100"] = (*LEVERS["drawer-entry-timed"], "actor.eval_every_versions=10")
 
 
 def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str]:
