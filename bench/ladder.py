@@ -32,6 +32,8 @@ import learning  # bench/learning.py: the arguments every learning bench takes
 import learning_curves  # bench/learning_curves.py
 from ablation import GRIDS, LEVERS, grid_name  # bench/ablation.py: the levers and grids the entries are made of
 
+from actors.sim.task_specs import TASK_SPECS
+
 TAG = "ladder"
 HEADLINE = 0.8  #: every rung is also timed to this rate, so the tasks compare in one column
 
@@ -221,7 +223,8 @@ def write_results(args: argparse.Namespace) -> str:
     learning_curves.write_csv(results / "ladder.csv", [r for task_rows in rows.values() for r in task_rows], CSV_FIELDS)
     text = table(rows)
     missing = [t for t in args.tasks if not curves[t]]
-    note = f"\n\nNo seed has run yet: {', '.join(missing)}." if missing else ""
+    revisions = ", ".join(f"{t} (revision {TASK_SPECS[t].revision})" for t in missing)
+    note = f"\n\nNo seed has run yet at the task's current revision: {revisions}." if missing else ""
     (results / "ladder.md").write_text(
         f"Preset {args.preset}, seeds {args.first_seed}-{args.first_seed + args.seeds - 1}, each run stopped once "
         f"{args.stop_held} evaluations in a row reached its bar.\n\n{text}{note}\n")

@@ -10,6 +10,8 @@ from pathlib import Path
 import learning_curves  # bench/learning_curves.py
 import pytest
 
+from actors.sim.task_specs import TASK_SPECS
+
 REPO = Path(__file__).resolve().parent.parent
 _spec = importlib.util.spec_from_file_location("bench_ladder", REPO / "bench" / "ladder.py")
 ladder = importlib.util.module_from_spec(_spec)
@@ -65,7 +67,8 @@ def test_the_table_puts_each_tasks_worst_seed_first_and_writes_md_csv_png(tmp_pa
     assert lines[push + 1].startswith("|  |  |  | 1 |")
     lid = next(line for line in lines if line.startswith("| **lift_lid**"))
     assert "| 2 (worst) | not reached | not reached | 40 % |" in lid
-    assert lines[-1] == "No seed has run yet: open_drawer."
+    revision = TASK_SPECS["open_drawer"].revision
+    assert lines[-1] == f"No seed has run yet at the task's current revision: open_drawer (revision {revision})."
     with (results / "ladder.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [(r["task"], r["seed"]) for r in rows] == [("push_button", "2"), ("push_button", "1"),

@@ -105,6 +105,17 @@ def test_tasks_of_one_rlbench_variation_look_the_same_in_every_episode(task):
     assert len(looks) == 1
 
 
+def test_stack_wine_is_one_layout_the_bottle_left_of_the_rack_as_rlbench():
+    """Mirroring the pair at random (revisions 1-2) doubled the modes 10 demos must cover."""
+    from actors.sim.tasks.stack_wine import StackWine
+
+    t = StackWine.__new__(StackWine)
+    for seed in range(50):
+        t.sample(np.random.default_rng(seed))
+        assert t.bottle[1] >= 0.15 and t.rack[1] <= -0.05
+        assert -np.pi / 2 - np.pi / 8 <= t.rack_yaw <= -np.pi / 2 + np.pi / 8
+
+
 def test_demos_cached_for_an_older_scene_of_a_task_are_not_reused():
     from deploy.config import load_config
     from deploy.roles import demo_dir

@@ -34,7 +34,8 @@ TASK_SPECS: dict[str, TaskSpec] = {s.name: s for s in (
     # from 10 cm again (from 5 cm the hand missed the handle in 9 of 100 demos)
     TaskSpec("put_in_bin", 8, revision=3),  # 2: the demo lets go 13 cm above the bin's floor (1: 20 cm, unseen);
     # 3: and approaches the block 5 cm above it (2: 10 cm)
-    TaskSpec("stack_wine", 10, revision=2),  # 2: approach and turn 5 cm above grasp and cradle (1: 8, 15)
+    TaskSpec("stack_wine", 10, revision=3),  # 2: approach and turn 5 cm above grasp and cradle (1: 8, 15);
+    # 3: the bottle always left of the rack, RLBench's one layout (1-2: the pair mirrored across x at random)
     TaskSpec("put_item_in_drawer", 15, revision=3),  # 2: the block's approach 5 cm above it (1: 10 cm);
     # 3: always the bottom drawer, as open_drawer
 )}
