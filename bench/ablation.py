@@ -177,7 +177,9 @@ LEVERS["drawer-timed-fine"] = (*(lever for lever in LEVERS["drawer-entry-timed"]
 #: ... evaluated every 100 updates instead of every 50: on 2 cores the evaluator (20 seeded episodes per version, each
 #: rendered by three cameras, planned and recorded) is never idle, and took as much of the CPU as the learner and the
 #: actor (61, 65 and 66 % of the 200 % by `ps`, stack_wine at 22 min); the drawer's seeds needed 4,250-4,980
-#: updates for the bar and the learner ran 1.34-1.56 updates/s. Training is unchanged; the curve is coarser.
+#: updates for the bar and the learner ran 1.34-1.56 updates/s. Training is unchanged; the curve is coarser. (Seed 3,
+#: stopped at 44.7 min: 4,360 updates and 8,411 env steps against the entry's 3,600 and 6,921 at that minute; 20 % at
+#: best, its first success no sooner in updates.)
 LEVERS["drawer-timed-eval-100"] = (*LEVERS["drawer-entry-timed"], "actor.eval_every_versions=10")
 
 
