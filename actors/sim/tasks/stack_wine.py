@@ -22,8 +22,8 @@ CENTRE_FROM_GRIP = BODY_H / 2 + NECK_H - GRIP_BELOW_TOP
 ABOVE = 0.05
 #: The bottle stands on this side of the arm's x axis (+1: left, +y), the rack on the other. RLBench's stack_wine is
 #: one layout moved about the table. Revisions 1-2 drew the side per episode, which doubled the modes the demos
-#: must cover: with 10 demos (3 of them mirrored), every mirrored evaluation scene (7 of 20) failed in both greedy
-#: traces of the ladder's best variant, and the other 13 capped its success at 65 % (BENCHMARKS.md).
+#: must cover: with 10 demos (3 of them mirrored), the best variants' greedy policies solved 0-1 of the 7 mirrored
+#: evaluation scenes of 20 and 8-11 of the other 13, which capped success at 65 % (BENCHMARKS.md).
 BOTTLE_SIDE = 1.0
 
 
