@@ -262,11 +262,26 @@ def new_run_id() -> str:
     return time.strftime("%Y%m%d-%H%M%S")
 
 
+#: The task and scene revision a run started on, written once, when its directory is new: resumed on another
+#: scene, its checkpoints would carry the old scene's replay and weights into the new one (deploy/preflight.py).
+TASK_RECORD = "task.json"
+
+
+def task_record(config: RunConfig) -> dict[str, Any]:
+    """``{"task": ..., "revision": ...}`` of ``config``; the revision is None for a task the ladder lacks."""
+    from actors.sim.task_specs import TASK_SPECS
+
+    spec = TASK_SPECS.get(config.sim.task)
+    return {"task": config.sim.task, "revision": spec.revision if spec else None}
+
+
 def write_run_dir(config: RunConfig, overwrite: bool = True) -> Path:
-    """Create ``runs/<run-id>/`` with ``config.yaml`` and ``versions.json``; return it."""
+    """Create ``runs/<run-id>/`` with ``config.yaml``, ``versions.json`` and, when new, ``task.json``; return it."""
     run_dir = config.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
     config_path = run_dir / "config.yaml"
+    if not config_path.exists() and not (run_dir / TASK_RECORD).exists():
+        (run_dir / TASK_RECORD).write_text(json.dumps(task_record(config)) + "\n", encoding="utf-8")
     if overwrite or not config_path.exists():
         config_path.write_text(dump_yaml(config), encoding="utf-8")
     versions_path = run_dir / "versions.json"

@@ -8,6 +8,7 @@ machine must listen on and the directories it must write are checked up front, f
 
 from __future__ import annotations
 
+import json
 import socket
 import tempfile
 from pathlib import Path
@@ -49,6 +50,7 @@ def problems(config, roles: list[str], instance: str | None = None) -> list[str]
         for host, port in tcp_endpoints([endpoint]):
             found += _port_free("127.0.0.1" if host == "*" else host, port, "replay.zmq_endpoint")
     found += _writable(Path(config.run.runs_dir), "run.runs_dir")
+    found += _same_scene(config)
     if "demo_source" in roles and config.demos.episodes > 0:
         found += _writable(Path(config.demos.directory), "demos.directory")
     return found
@@ -75,6 +77,39 @@ def _certificates(config, roles: list[str], instance: str | None) -> list[str]:
         except ValueError as exc:
             found.append(f"fabric.certs: {exc}")
     return found
+
+
+def _same_scene(config) -> list[str]:
+    """A run resumes only on the task (and scene revision) it started on.
+
+    Its checkpoints hold the replay and weights of that scene; a run id reused after a task's
+    revision changed (say stack_wine's layout) would otherwise resume them silently.
+    """
+    import yaml
+
+    from deploy.config import TASK_RECORD, task_record
+
+    run_dir = config.run_dir
+    now = task_record(config)
+    try:
+        if (run_dir / TASK_RECORD).exists():
+            started = json.loads((run_dir / TASK_RECORD).read_text(encoding="utf-8"))
+        elif (run_dir / "config.yaml").exists():  # a run older than the record: its task, revision unknown
+            previous = yaml.safe_load((run_dir / "config.yaml").read_text(encoding="utf-8"))
+            started = {"task": previous["sim"]["task"], "revision": now["revision"]}
+        else:
+            return []
+        same = (started["task"], started["revision"]) == (now["task"], now["revision"])
+    except (OSError, ValueError, KeyError, TypeError, yaml.YAMLError) as exc:
+        return [f"run.run_id: cannot tell which task {str(run_dir)!r} started on ({exc}); choose a new --run-id"]
+    if same:
+        return []
+
+    def scene(record: dict) -> str:
+        return f"{record['task']} revision {record['revision']}" if record["revision"] else str(record["task"])
+
+    return [f"run.run_id: {str(run_dir)!r} holds a run of {scene(started)}, not {scene(now)}: resuming it would "
+            f"carry that scene's replay and weights over; choose a new --run-id"]
 
 
 def _port_free(host: str, port: int, what: str) -> list[str]:

@@ -306,6 +306,31 @@ def test_the_run_directory_holds_the_resolved_config_and_versions(tmp_path):
     assert f", {os.cpu_count()} cores" in versions["cpu"]
 
 
+def test_a_run_resumes_only_on_the_task_and_scene_revision_it_started_on(tmp_path, monkeypatch):
+    """Its checkpoints hold that scene's replay and weights; a revised task needs a new run id."""
+    from actors.sim import task_specs
+    from deploy.preflight import problems
+
+    cfg = load_config("cpu-small", overrides=({"run": {"run_id": "exp-3", "runs_dir": str(tmp_path)},
+                                               "sim": {"task": "stack_wine"}},))
+    run_dir = write_run_dir(cfg)
+    assert json.loads((run_dir / "task.json").read_text()) == {
+        "task": "stack_wine", "revision": task_specs.task_spec("stack_wine").revision}
+    assert problems(cfg, ["learner"]) == []  # the same scene resumes
+
+    revised = dataclasses.replace(task_specs.TASK_SPECS["stack_wine"], revision=99)
+    monkeypatch.setitem(task_specs.TASK_SPECS, "stack_wine", revised)
+    [problem] = problems(cfg, ["learner"])
+    assert problem.startswith("run.run_id:") and "revision 99" in problem and "choose a new --run-id" in problem
+    monkeypatch.undo()
+
+    other = load_config(None, files=(run_dir / "config.yaml",), overrides=({"sim": {"task": "reach_target"}},))
+    [problem] = problems(other, ["learner"])
+    assert "holds a run of stack_wine revision" in problem and "not reach_target" in problem
+    write_run_dir(cfg)  # a relaunch rewrites config.yaml but never the record of where the run began
+    assert json.loads((run_dir / "task.json").read_text())["task"] == "stack_wine"
+
+
 def test_every_config_field_has_a_doc_comment():
     cfg = RunConfig()
     sections = [RunConfig] + [type(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)]
