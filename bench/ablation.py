@@ -182,6 +182,15 @@ LEVERS["drawer-timed-fine"] = (*(lever for lever in LEVERS["drawer-entry-timed"]
 #: stopped at 44.7 min: 4,360 updates and 8,411 env steps against the entry's 3,600 and 6,921 at that minute; 20 % at
 #: best, its first success no sooner in updates.)
 LEVERS["drawer-timed-eval-100"] = (*LEVERS["drawer-entry-timed"], "actor.eval_every_versions=10")
+#: The replay's byte cap, not its 20,000 transitions, bounds what the cpu-small preset keeps: its 2 GiB held 6,430
+#: stack_wine transitions (front + wrist, ~330 KB each) from ~2,400 updates on, and 4,100 of put_item_in_drawer's
+#: (three cameras, ~520 KB) from ~1,600, evicting the oldest agent episodes after that. stack_wine's late sag (seeds
+#: 1-2 of revision 3) begins about there, which may be chance. 8 GiB (the replay's own default) keeps a 60-minute
+#: run whole; it costs that much memory and ~2.5 times as much disk for the replay's checkpoints (5.0 GB at 2 GiB).
+#: Not run yet.
+REPLAY_8G = "replay.capacity_bytes=8589934592"
+LEVERS["drawer-timed-replay-8g"] = (*LEVERS["drawer-entry-timed"], REPLAY_8G)
+LEVERS["release-skip-repeats-replay-8g"] = (*LEVERS["release-skip-repeats"], REPLAY_8G)
 
 
 def learning_args(args: argparse.Namespace, variant: str, seed: int) -> list[str]:
@@ -309,7 +318,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         for seed in range(args.first_seed, args.first_seed + args.seeds) for variant in args.variants)
     if failed is None:
         return 130
-    results = {variant: seed_curves(args, variant) for variant in args.variants}
+    # Every seed of each variant: those in range, and those recorded before (seeds run a few at a time)
+    recorded = recorded_curves(args.results_dir, args.task, args.preset, args.variants)
+    results = {variant: {**recorded.get(variant, {}), **seed_curves(args, variant)} for variant in args.variants}
     for variant, by_seed in results.items():  # each run wrote its own seed's aggregate: now every seed's
         if by_seed:
             parsed = variant_args(args, variant)

@@ -105,10 +105,15 @@ def results_stem(args: argparse.Namespace) -> str:
     return f"{args.task}-{args.preset}" + (f"-{args.tag}" if args.tag else "")
 
 
-def seed_run_ids(args: argparse.Namespace) -> dict[int, str]:
-    """Run ids of the seeds in range: fixed names, so rerunning the command resumes them."""
+def seed_run_id(args: argparse.Namespace, seed: int) -> str:
+    """A seed's run id: a fixed name, so rerunning the command resumes it."""
     prefix = args.prefix or f"learn-{args.task}-{args.preset}" + (f"-{args.tag}" if args.tag else "")
-    return {seed: f"{prefix}-s{seed}" for seed in range(args.first_seed, args.first_seed + args.seeds)}
+    return f"{prefix}-s{seed}"
+
+
+def seed_run_ids(args: argparse.Namespace) -> dict[int, str]:
+    """Run ids of the seeds in range."""
+    return {seed: seed_run_id(args, seed) for seed in range(args.first_seed, args.first_seed + args.seeds)}
 
 
 def load_seeds(args: argparse.Namespace) -> dict[int, Curve]:
@@ -134,10 +139,9 @@ def held_seeds(args: argparse.Namespace, curves: Mapping[int, Curve]) -> list[bo
     The run's budget file says so; a seed read back from its CSV (its run directory gone) held if
     its curve holds ``--stop-at`` as the stopping rule reads it.
     """
-    run_ids = seed_run_ids(args)
     flags = []
-    for seed, curve in curves.items():
-        run_dir = Path(args.runs_dir) / run_ids[seed]
+    for seed, curve in curves.items():  # seeds out of range too: an ablation combines every recorded one
+        run_dir = Path(args.runs_dir) / seed_run_id(args, seed)
         if run_dir.is_dir():
             flags.append(load_budget(run_dir).held_rate is not None)
         else:

@@ -122,6 +122,30 @@ def test_each_variants_aggregate_holds_every_seed_of_it(tmp_path, monkeypatch):
     assert [float(r["success_rate"]) for r in rows] == [0.0, 0.5, 0.8, 0.9, 0.95]
 
 
+def test_seeds_run_a_few_at_a_time_all_reach_the_variants_aggregate(tmp_path):
+    """Seed 1 ran yesterday, seed 2 today (``--first-seed 2 --seeds 1``): the aggregate and the table hold both."""
+    import csv
+
+    from learning_curves import curve_fields, read_curve_csv, write_csv
+
+    results = tmp_path / "results"
+    for seed, rates in ((1, (0.0, 0.9, 0.9)), (2, (0.0, 0.2, 0.6))):
+        points = curve(*((1.0 + k, 100 * k, r) for k, r in enumerate(rates)))
+        write_csv(results / f"push_button-cpu-small-no-margin-s{seed}.csv", points, curve_fields(points))
+    before = (results / "push_button-cpu-small-no-margin-s1.csv").read_bytes()
+    argv = ["--task", "push_button", "--variants", "no-margin", "--first-seed", "2", "--seeds", "1",
+            "--thresholds", "0.5", "--runs-dir", str(tmp_path / "runs"), "--results-dir", str(results), "--summary"]
+    assert ablation.main(argv) == 0
+    with (results / "push_button-cpu-small-no-margin.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {int(r["seeds"]) for r in rows} == {2}
+    assert [float(r["success_rate"]) for r in rows] == [0.0, 0.2, 0.6]  # the worst seed at each point
+    assert (results / "push_button-cpu-small-no-margin-s1.csv").read_bytes() == before  # read back as it was
+    assert read_curve_csv(results / "push_button-cpu-small-no-margin-s2.csv")[-1]["success_rate"] == 0.6
+    table = (results / "ablation-push_button-cpu-small.md").read_text()
+    assert "| no-margin | 1 |" in table and "| no-margin | 2 |" in table
+
+
 def test_a_later_ablation_keeps_the_earlier_levers_rows_and_reads_seeds_back_from_their_csvs(tmp_path):
     """The table file is rewritten by every ablation: levers not named now come back from their seed CSVs,
     and so do the named lever's seeds once their run directories are gone (another machine)."""

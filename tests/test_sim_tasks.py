@@ -116,6 +116,16 @@ def test_stack_wine_is_one_layout_the_bottle_left_of_the_rack_as_rlbench():
         assert -np.pi / 2 - np.pi / 8 <= t.rack_yaw <= -np.pi / 2 + np.pi / 8
 
 
+def test_put_item_in_drawer_is_one_layout_the_chest_left_and_the_block_right():
+    """As stack_wine: 10 demos cover one layout better than two mirrored ones."""
+    from actors.sim.tasks.put_item_in_drawer import PutItemInDrawer
+
+    t = PutItemInDrawer.__new__(PutItemInDrawer)
+    for seed in range(50):
+        t.sample(np.random.default_rng(seed))
+        assert t.position[1] >= 0.08 and t.block[1] <= -0.22
+
+
 def test_demos_cached_for_an_older_scene_of_a_task_are_not_reused():
     from deploy.config import load_config
     from deploy.roles import demo_dir

@@ -36,8 +36,9 @@ TASK_SPECS: dict[str, TaskSpec] = {s.name: s for s in (
     # 3: and approaches the block 5 cm above it (2: 10 cm)
     TaskSpec("stack_wine", 10, revision=3),  # 2: approach and turn 5 cm above grasp and cradle (1: 8, 15);
     # 3: the bottle always left of the rack, RLBench's one layout (1-2: the pair mirrored across x at random)
-    TaskSpec("put_item_in_drawer", 15, revision=3),  # 2: the block's approach 5 cm above it (1: 10 cm);
-    # 3: always the bottom drawer, as open_drawer
+    TaskSpec("put_item_in_drawer", 15, revision=4),  # 2: the block's approach 5 cm above it (1: 10 cm);
+    # 3: always the bottom drawer, as open_drawer; 4: the chest always left of the arm, the block right (1-3: mirrored
+    # across x at random)
 )}
 TASKS: tuple[str, ...] = tuple(TASK_SPECS)
 #: The task ``sim.task`` names unless a preset or the command line says otherwise.
