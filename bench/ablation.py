@@ -156,7 +156,7 @@ LEVERS["release-timed"] = tuple(lever for lever in (*ENTRY_LEVERS["release"], *G
 #: ... or the acting rule that ends the loops where they start: a choice that repeats the gripper's pose (its voxel,
 #: rotation bins and gripper state) gives way to the best one that moves (qattention/repeats.py). (Seed 1, 60 min:
 #: 50 % first at 1,150 updates, 65 % at best, 40-65 % over its last 20 evaluations; the loops gone: BENCHMARKS.md.
-#: At task revision 3, one layout: seed 1 70 % first at 10.4 min, 940 updates, in a 34-minute run.)
+#: At task revision 3, one layout: 70 % on seeds 1-3 at 10.4, 19.7 and 17.0 min, 940-2,080 updates; the ladder's entry.)
 LEVERS["release-skip-repeats"] = (*ENTRY_LEVERS["release"], *GRID_8_8_8, "actor.skip_repeats=true")
 #: ... and with gamma 0.9: at 0.9 the greedy grasp came right in 18-19 of 20 scenes, but the policy then held on at
 #: the grasp or the lift, repeating its pose, which the rule breaks. (Seed 1: 35 % at best, a mean of 15 % over its

@@ -98,8 +98,8 @@ RUNGS: dict[str, Rung] = {r.task: r for r in (
          "layout, as RLBench's) all three seeds reached 70 %, the worst at 19.7 min (BENCHMARKS.md, the ladder)"),
     Rung("put_item_in_drawer", 0.5, 60, DRAWER_TIMED_ENTRY, "open_drawer's, the time value kept: it opens the same "
          "chest first, and its open-gripper keyframes after the pull and after the lift read alike without it; "
-         "50 % in 45.9 and 53.2 min on seeds 1-2, 35 % at best in 60 min on seed 3; 0-5 % without it "
-         "(BENCHMARKS.md, the ladder)"),
+         "at task revision 3, 50 % in 45.9 and 53.2 min on seeds 1-2, 35 % at best in 60 min on seed 3; 0-5 % without "
+         "it (BENCHMARKS.md, the ladder)"),
 )}
 
 
