@@ -16,13 +16,16 @@ of every task first), so one diagnostic pass over the ladder comes before any se
 
 Outputs, read from those per-seed CSVs (so seeds run on other days still combine):
 ``bench/results/ladder.md`` (per task its demos, cameras, grid, entry, then each seed's minutes /
-env steps / updates to 80 % and to its bar, and the final rate, the worst seed first),
-``ladder.csv`` (the same, one row per seed) and ``ladder.png`` (every task's curves).
+env steps / updates to 80 % and to its bar, the final rate, and its learner's updates/s with the CPU flags it ran
+on, from the machine record beside the CSV (put_item_in_drawer's learner ran 0.81 updates/s on an AVX2-only host,
+1.31 on an AVX-512-bf16 one); the worst seed first), ``ladder.csv`` (the same, one row per seed, with the CPU
+and commit) and ``ladder.png`` (every task's curves).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,6 +129,19 @@ def seed_curves(args: argparse.Namespace, task: str) -> dict[int, learning_curve
             if seed_csv(args, task, seed).exists()}
 
 
+def seed_machine(args: argparse.Namespace, task: str, seed: int) -> dict:
+    """The machine record beside a seed's CSV (bench/learning.py's ``record_machine``); {} where none was kept."""
+    try:
+        return json.loads(seed_csv(args, task, seed).with_suffix(".machine.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def cpu_flags(cpu: str) -> str:
+    """The speed flags of a machine record's CPU ("AMD EPYC, 2 cores, avx2 avx512f" -> "avx2 avx512f")."""
+    return cpu.rsplit(", ", 1)[-1] if cpu else "not recorded"
+
+
 def run_config(args: argparse.Namespace, rung: Rung):
     """The resolved config a rung's runs use (demos and cameras for the table)."""
     from deploy.config import load_config
@@ -146,6 +162,7 @@ def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning_c
     config = run_config(args, rung)
     rows = []
     for seed, curve in curves.items():
+        machine = seed_machine(args, rung.task, seed)
         at_80, at_bar = learning_curves.first_reaching(curve, HEADLINE), learning_curves.first_reaching(curve, rung.bar)
         rows.append({
             "task": rung.task, "seed": seed, "bar": rung.bar, "demos": config.demos.episodes,
@@ -157,6 +174,8 @@ def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning_c
             "env_steps_to_bar": at_bar and at_bar["env_steps"], "updates_to_bar": at_bar and at_bar["learner_step"],
             "final_success": curve[-1]["success_rate"], "evaluations": len(curve),
             "minutes_run": round(curve[-1]["minutes"], 2),
+            "updates_per_s": round(curve[-1]["learner_step"] / max(1e-9, 60 * curve[-1]["minutes"]), 2),
+            "cpu": machine.get("cpu") or "", "commit": (machine.get("git_commit") or "")[:7],
         })
     rows.sort(key=lambda r: (r["minutes_to_bar"] is not None, -(r["minutes_to_bar"] or 0.0)))
     return rows
@@ -164,13 +183,13 @@ def seed_rows(args: argparse.Namespace, rung: Rung, curves: dict[int, learning_c
 
 CSV_FIELDS = ["task", "seed", "bar", "demos", "cameras", "grid", "entry", "minutes_to_80", "env_steps_to_80",
               "updates_to_80", "minutes_to_bar", "env_steps_to_bar", "updates_to_bar", "final_success", "evaluations",
-              "minutes_run"]
+              "minutes_run", "updates_per_s", "cpu", "commit"]
 
 
 def table(rows_by_task: dict[str, list[dict]]) -> str:
     """Markdown: one line per seed, grouped by task in ladder order, each task's worst seed first."""
     header = ["task", "bar", "demos, cameras, grid", "seed", "to 80 % (min, env steps, updates)",
-              "to the bar (min, env steps, updates)", "final", "ran (min)"]
+              "to the bar (min, env steps, updates)", "final", "ran (min)", "updates/s, CPU flags"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for task, rows in rows_by_task.items():
         for i, r in enumerate(rows):
@@ -186,7 +205,8 @@ def table(rows_by_task: dict[str, list[dict]]) -> str:
                 f"**{task}**" if first else "", f"{100 * r['bar']:g} %" if first else "", setup if first else "",
                 f"{r['seed']}" + (" (worst)" if first and len(rows) > 1 else ""),
                 ", ".join(c for c in to_80 if c), ", ".join(c for c in to_bar if c),
-                f"{100 * r['final_success']:.0f} %", f"{r['minutes_run']:.1f}"]) + " |")
+                f"{100 * r['final_success']:.0f} %", f"{r['minutes_run']:.1f}",
+                f"{r['updates_per_s']:.2f}, {cpu_flags(r['cpu'])}"]) + " |")
     return "\n".join(lines)
 
 

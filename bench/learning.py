@@ -25,6 +25,7 @@ Outputs, from each run's ``runs/<id>/metrics/eval.csv`` (columns read by name):
 
 * ``runs/<id>/learning_curve.{csv,png}`` after each run, as before;
 * ``<results-dir>/<task>-<preset>[-<tag>]-s<seed>.csv``: each seed's curve;
+  ``...-s<seed>.machine.json`` beside it: the CPU (model, cores, speed flags), commit and torch it ran with;
 * ``<results-dir>/<task>-<preset>[-<tag>].{csv,png}``: the seeds aggregated by evaluation index
   (see ``aggregate``), plotted against env steps and minutes: seeds thin, mean thick, worst dashed;
 * a markdown table, for BENCHMARKS.md, of when each seed (and the worst) first reached each
@@ -34,6 +35,7 @@ Outputs, from each run's ``runs/<id>/metrics/eval.csv`` (columns read by name):
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import subprocess
 import sys
@@ -159,10 +161,29 @@ def write_results(args: argparse.Namespace, curves: Mapping[int, Curve], combine
     results, stem = Path(args.results_dir), results_stem(args)
     for seed, curve in curves.items():
         write_csv(results / f"{stem}-s{seed}.csv", curve, curve_fields(curve))
+        record_machine(Path(args.runs_dir) / seed_run_id(args, seed), results / f"{stem}-s{seed}.machine.json")
     write_csv(results / f"{stem}.csv", combined, AGGREGATE_FIELDS)
     named = {f"seed {seed}": curve for seed, curve in curves.items()}
     png = plot_seeds(named, combined, results / f"{stem}.png", f"{stem}, {len(curves)} seed(s)")
     print(f"wrote {results / stem}.csv, {png} and {len(curves)} per-seed CSV(s)")
+
+
+#: What a seed's machine record keeps of its run's versions.json: minutes and updates/s differ several-fold
+#: between hosts of one kind (an AVX2-only "AMD EPYC" VM against an AVX-512-bf16 one), so a curve's minutes are read
+#: beside the CPU they ran on.
+MACHINE_FIELDS = ("cpu", "git_commit", "torch")
+
+
+def record_machine(run_dir: Path, out: Path) -> None:
+    """``out`` (JSON): the CPU, commit and torch a seed's run last ran with, from its ``versions.json``.
+
+    Left as it is when the run directory is gone (a seed read back from its CSV keeps its record).
+    """
+    try:
+        versions = json.loads((run_dir / "versions.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    out.write_text(json.dumps({k: versions.get(k) for k in MACHINE_FIELDS}, indent=2) + "\n", encoding="utf-8")
 
 
 def add_stop_arguments(parser: argparse.ArgumentParser) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -93,3 +94,33 @@ def test_a_recorded_seed_is_not_run_again_even_where_its_run_directory_is_gone(t
     assert ladder.main(["--tasks", "push_button", "--seeds", "2", "--runs-dir", str(tmp_path / "runs"),
                         "--results-dir", str(results)]) == 0
     assert ran == ["push_button seed 2"]
+
+
+def test_each_seed_is_shown_with_its_learners_speed_and_the_cpu_it_ran_on(tmp_path):
+    """Minutes depend on the host: the table says, per seed, how fast its learner went and on which CPU flags."""
+    results = tmp_path / "results"
+    write_seed(results, "push_button", 1, [0.0, 0.95, 1.0], 1.0)  # 100 updates in 3 minutes
+    write_seed(results, "push_button", 2, [0.0, 0.5, 0.95], 2.0)  # 100 updates in 6 minutes, no machine record
+    (results / "push_button-cpu-small-ladder-s1.machine.json").write_text(
+        '{"cpu": "AMD EPYC, 2 cores, avx2 avx512f avx512_bf16", "git_commit": "50d60a89f15", "torch": "2.13.0+cpu"}')
+    assert ladder.main(["--tasks", "push_button", "--seeds", "2", "--summary", "--results-dir", str(results)]) == 0
+    lines = (results / "ladder.md").read_text().splitlines()
+    worst = lines.index(next(line for line in lines if line.startswith("| **push_button**")))
+    assert lines[worst].endswith("| 0.28, not recorded |")  # seed 2
+    assert lines[worst + 1].endswith("| 0.56, avx2 avx512f avx512_bf16 |")  # seed 1
+    with (results / "ladder.csv").open() as f:
+        rows = {r["seed"]: r for r in csv.DictReader(f)}
+    assert rows["1"]["cpu"] == "AMD EPYC, 2 cores, avx2 avx512f avx512_bf16" and rows["1"]["commit"] == "50d60a8"
+    assert rows["2"]["cpu"] == "" and rows["2"]["updates_per_s"] == "0.28"
+
+
+def test_a_seeds_machine_record_is_its_runs_cpu_commit_and_torch(tmp_path):
+    run_dir = tmp_path / "runs" / "learn-push_button-cpu-small-s1"
+    run_dir.mkdir(parents=True)
+    (run_dir / "versions.json").write_text(
+        '{"python": "3.11.7", "cpu": "AMD EPYC, 2 cores, avx2", "torch": "2.13.0+cpu", "git_commit": "abc"}')
+    out = tmp_path / "push_button-cpu-small-s1.machine.json"
+    ladder.learning.record_machine(run_dir, out)
+    assert json.loads(out.read_text()) == {"cpu": "AMD EPYC, 2 cores, avx2", "git_commit": "abc", "torch": "2.13.0+cpu"}
+    ladder.learning.record_machine(tmp_path / "runs" / "gone", out)  # a run directory gone keeps the record
+    assert json.loads(out.read_text())["cpu"] == "AMD EPYC, 2 cores, avx2"
