@@ -189,7 +189,8 @@ CSV_FIELDS = ["task", "seed", "bar", "demos", "cameras", "grid", "entry", "minut
 def table(rows_by_task: dict[str, list[dict]]) -> str:
     """Markdown: one line per seed, grouped by task in ladder order, each task's worst seed first."""
     header = ["task", "bar", "demos, cameras, grid", "seed", "to 80 % (min, env steps, updates)",
-              "to the bar (min, env steps, updates)", "final", "ran (min)", "updates/s, CPU flags"]
+              "to the bar (min, env steps, updates)", "final", "ran (min)",
+              "updates/s over the run, CPU flags"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for task, rows in rows_by_task.items():
         for i, r in enumerate(rows):
