@@ -17,7 +17,7 @@ of every task first), so one diagnostic pass over the ladder comes before any se
 Outputs, read from those per-seed CSVs (so seeds run on other days still combine):
 ``bench/results/ladder.md`` (per task its demos, cameras, grid, entry, then each seed's minutes /
 env steps / updates to 80 % and to its bar, the final rate, and its learner's updates/s with the CPU flags it ran
-on, from the machine record beside the CSV (put_item_in_drawer's learner ran 0.81 updates/s on an AVX2-only host,
+on, from the machine record beside the CSV (put_item_in_drawer's learner ran 0.77 updates/s on an AVX2-only host,
 1.31 on an AVX-512-bf16 one); the worst seed first), ``ladder.csv`` (the same, one row per seed, with the CPU
 and commit) and ``ladder.png`` (every task's curves).
 """
