@@ -5,10 +5,11 @@
 
 Reads the evaluator's recorded episodes (``runs/<id>/eval/v<version>-seed<seed>.mcap``) and
 prints, per version: episodes, successes, how the others ended (timeout, unreachable with the
-control agent's reason, failed), decisions per episode, the share of next-best poses with the
-gripper closed, and the median x-y-z of the first pose. A policy that flips between two places
-for the same scenes shows as a first pose that jumps between versions; one that never grasps or
-never lets go shows in the closed share.
+control agent's reason, failed), how many ended on an unreachable first pose, decisions per episode,
+the share of next-best poses with the gripper closed, and the median x-y-z of the first pose. A
+policy that flips between two places for the same scenes shows as a first pose that jumps between
+versions; one that never grasps or never lets go shows in the closed share; one that skips an
+approach for the grasp itself often ends on its first pose, out of the arm's collision-free reach.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ NAME = re.compile(r"v(\d+)-seed(\d+)\.mcap$")
 def endings(paths: list[Path]) -> dict[str, object]:
     """One version's episodes summarised."""
     ends: Counter[str] = Counter()
-    decisions, closed, firsts = [], [], []
+    decisions, closed, firsts, unreachable_first = [], [], [], 0
     for path in paths:
         try:
             ep = read_episode_view(path)
@@ -43,12 +44,14 @@ def endings(paths: list[Path]) -> dict[str, object]:
         reason = ep.end_reason or ("success" if ep.success else "?")
         ends[f"{reason}:{ep.unreachable_reason}" if ep.unreachable_reason else reason] += 1
         decisions.append(len(ep.actions))
+        unreachable_first += bool(ep.unreachable_reason) and len(ep.actions) == 1  # the first pose itself
         closed += [float(a[7] < 0.5) for a in ep.actions]
         if ep.actions:
             firsts.append(ep.actions[0][:3])
     first = np.median(np.stack(firsts), 0) if firsts else None
     return {"episodes": sum(ends.values()), "ends": ends, "decisions": statistics.fmean(decisions) if decisions else 0,
-            "closed": statistics.fmean(closed) if closed else 0.0, "first": first}
+            "closed": statistics.fmean(closed) if closed else 0.0, "first": first,
+            "unreachable_first": unreachable_first}
 
 
 def main() -> int:
@@ -65,15 +68,16 @@ def main() -> int:
         print(f"no evaluation episodes under {args.run_dir / 'eval'} (actor.record_eval off?)", file=sys.stderr)
         return 1
     versions = sorted(by_version)[-args.last:] if args.last > 0 else sorted(by_version)
-    print("| version | episodes | success | other endings | decisions | gripper closed | first pose x, y, z (median) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| version | episodes | success | other endings | unreachable first pose | decisions | gripper closed "
+          "| first pose x, y, z (median) |")
+    print("|---|---|---|---|---|---|---|---|")
     for v in versions:
         s = endings(by_version[v])
         ends: Counter[str] = s["ends"]  # type: ignore[assignment]
         others = ", ".join(f"{n} {k}" for k, n in ends.most_common() if k != "success") or "-"
         first = "-" if s["first"] is None else ", ".join(f"{x:.3f}" for x in s["first"])
-        print(f"| {v} | {s['episodes']} | {ends['success']} | {others} | {s['decisions']:.1f} | "
-              f"{100 * s['closed']:.0f} % | {first} |")
+        print(f"| {v} | {s['episodes']} | {ends['success']} | {others} | {s['unreachable_first']} | "
+              f"{s['decisions']:.1f} | {100 * s['closed']:.0f} % | {first} |")
     return 0
 
 
