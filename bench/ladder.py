@@ -132,7 +132,7 @@ def seed_curves(args: argparse.Namespace, task: str) -> dict[int, learning_curve
 def seed_machine(args: argparse.Namespace, task: str, seed: int) -> dict:
     """The machine record beside a seed's CSV (bench/learning.py's ``record_machine``); {} where none was kept."""
     try:
-        return json.loads(seed_csv(args, task, seed).with_suffix(".machine.json").read_text(encoding="utf-8"))
+        return json.loads(learning.machine_record(seed_csv(args, task, seed)).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return {}
 
@@ -189,8 +189,7 @@ CSV_FIELDS = ["task", "seed", "bar", "demos", "cameras", "grid", "entry", "minut
 def table(rows_by_task: dict[str, list[dict]]) -> str:
     """Markdown: one line per seed, grouped by task in ladder order, each task's worst seed first."""
     header = ["task", "bar", "demos, cameras, grid", "seed", "to 80 % (min, env steps, updates)",
-              "to the bar (min, env steps, updates)", "final", "ran (min)",
-              "updates/s over the run, CPU flags"]
+              "to the bar (min, env steps, updates)", "final", "ran (min)", "updates/s over the run, CPU flags"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for task, rows in rows_by_task.items():
         for i, r in enumerate(rows):

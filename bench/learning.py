@@ -109,8 +109,7 @@ def results_stem(args: argparse.Namespace) -> str:
 
 def seed_run_id(args: argparse.Namespace, seed: int) -> str:
     """A seed's run id: a fixed name, so rerunning the command resumes it."""
-    prefix = args.prefix or f"learn-{args.task}-{args.preset}" + (f"-{args.tag}" if args.tag else "")
-    return f"{prefix}-s{seed}"
+    return f"{args.prefix or 'learn-' + results_stem(args)}-s{seed}"
 
 
 def seed_run_ids(args: argparse.Namespace) -> dict[int, str]:
@@ -161,7 +160,7 @@ def write_results(args: argparse.Namespace, curves: Mapping[int, Curve], combine
     results, stem = Path(args.results_dir), results_stem(args)
     for seed, curve in curves.items():
         write_csv(results / f"{stem}-s{seed}.csv", curve, curve_fields(curve))
-        record_machine(Path(args.runs_dir) / seed_run_id(args, seed), results / f"{stem}-s{seed}.machine.json")
+        record_machine(Path(args.runs_dir) / seed_run_id(args, seed), machine_record(results / f"{stem}-s{seed}.csv"))
     write_csv(results / f"{stem}.csv", combined, AGGREGATE_FIELDS)
     named = {f"seed {seed}": curve for seed, curve in curves.items()}
     png = plot_seeds(named, combined, results / f"{stem}.png", f"{stem}, {len(curves)} seed(s)")
@@ -172,6 +171,11 @@ def write_results(args: argparse.Namespace, curves: Mapping[int, Curve], combine
 #: between hosts of one kind (an AVX2-only "AMD EPYC" VM against an AVX-512-bf16 one), so a curve's minutes are read
 #: beside the CPU they ran on.
 MACHINE_FIELDS = ("cpu", "git_commit", "torch")
+
+
+def machine_record(seed_csv: Path) -> Path:
+    """Where a seed's machine record lies: beside its curve, ``<...>-s<seed>.machine.json``."""
+    return seed_csv.with_suffix(".machine.json")
 
 
 def record_machine(run_dir: Path, out: Path) -> None:
