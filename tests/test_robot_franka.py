@@ -9,6 +9,7 @@ measured numbers are in BENCHMARKS.md).
 from __future__ import annotations
 
 import dataclasses
+import re
 import threading
 import time
 
@@ -59,8 +60,9 @@ def test_reachable_pose_is_reached_within_tolerance(arm):
 
 
 def test_a_refused_trajectory_is_planned_again_slower(sim):
-    # 1e-12 of the dynamics makes a trajectory too long for Ruckig: franky refuses it for real (error -101),
-    # as it refused the same move of fresh simulations on some hosts; the retry at full speed then moves the arm.
+    # 1e-12 of the dynamics makes a trajectory too long for Ruckig: franky refuses it for real (Ruckig's
+    # calculation errors -1xx: -101 on some hosts, -110 on others), as it refused the same move of fresh simulations
+    # on some hosts; the retry at full speed then moves the arm.
     config = FrankaConfig(host=sim.hostname, dynamics_factor=0.2, replan_dynamics=(1e-12, 1.0))
     arm = FrankaArm(config, SafetyConfig())
     arm.connect()
@@ -70,7 +72,8 @@ def test_a_refused_trajectory_is_planned_again_slower(sim):
         assert arm.counters["replans"] == 1
         arm.config = dataclasses.replace(config, replan_dynamics=(1e-12,))  # no retry left: the refusal is the result
         refused = arm.move_to(pose(0.45, 0.1, 0.3), gripper_open=True)
-        assert (refused.status, refused.reason) == ("failed", "control_error") and "-101" in refused.detail
+        assert (refused.status, refused.reason) == ("failed", "control_error")
+        assert re.search(r"error code -1\d\d\b", refused.detail), refused.detail
         assert arm.counters["replans"] == 1
     finally:
         arm.disconnect()
