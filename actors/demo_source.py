@@ -33,19 +33,21 @@ IDS_PER_DEMO = 10_000
 
 
 def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10, depths: int = 2,
-                  scene_bounds_on_wire: bool = False) -> list[Episode]:
+                  scene_bounds_on_wire: bool = False, chain_keyframes: int = 0) -> list[Episode]:
     """The demo-augmented episodes of one demo file, ready to publish.
 
     ``depths`` sizes the (unused, zero) act-time label arrays that live episodes carry. With
     ``scene_bounds_on_wire`` every observation carries the demo's depth-0 box: the one a robot
-    demo was recorded for, else its simulated task's.
+    demo was recorded for, else its simulated task's. ``chain_keyframes`` cuts the augmented chains
+    (``demo_to_transitions``); a cut one is not a success.
     """
     demo = load_demo(path)
     if scene_bounds_on_wire:
         stamp_scene_bounds(demo.observations, demo.scene_bounds or task_bounds(demo.task))
     keyframes = demo_keyframes(demo)  # the operator's (robot demos) or discovered
     episodes = []
-    for i, part in enumerate(demo_to_transitions(demo.observations, keyframes, every_n=every_n)):
+    parts = demo_to_transitions(demo.observations, keyframes, every_n=every_n, chain_keyframes=chain_keyframes)
+    for i, part in enumerate(parts):
         steps = len(part.actions)
         pad_act_labels(part.observations, depths)
         episodes.append(Episode(
@@ -54,7 +56,7 @@ def demo_episodes(path: Path, demo_index: int, actor_id: str, every_n: int = 10,
             task=demo.task,
             seed=demo.seed,
             is_demo=True,
-            success=True,
+            success=bool(part.terminals[-1]),
             timeout=False,
             observations=stack_observations(part.observations),
             actions=np.asarray(part.actions, dtype=np.float32),
@@ -80,11 +82,12 @@ class DemoSourceSetup:
     every_n: int = 10  #: demo augmentation: an episode from every n-th frame to its next keyframe
     limit: int = 0  #: publish only the first ``limit`` demos (0: all)
     depths: int = 2  #: the cascade's depths, for the act-time labels of each keyframe
+    chain_keyframes: int = 0  #: demo augmentation: keyframes per augmented episode but frame 0's (0: all)
 
 
 def run(setup: DemoSourceSetup, ctx: RoleContext) -> int:
     """Publish every demo in ``setup.directory`` (the first ``limit`` if set) and wait for the acks."""
-    config, every_n, depths = setup.actor, setup.every_n, setup.depths
+    config, every_n, depths, chain = setup.actor, setup.every_n, setup.depths, setup.chain_keyframes
     demo_dir = setup.directory
     files = sorted(Path(demo_dir).glob("*.mcap"))[: setup.limit or None]
     if not files:
@@ -100,7 +103,8 @@ def run(setup: DemoSourceSetup, ctx: RoleContext) -> int:
         for index, path in enumerate(files):
             if ctx.stop.is_set():
                 break
-            for episode in demo_episodes(path, index, ctx.instance, every_n, depths, config.scene_bounds_on_wire):
+            for episode in demo_episodes(path, index, ctx.instance, every_n, depths, config.scene_bounds_on_wire,
+                                         chain):
                 outbox.send(episode)
                 published["demo_episodes"] += 1
             published["demos"] += 1

@@ -130,9 +130,12 @@ class DemoConfig:
     directory: str = "demos"
     seed: int = 0  #: seed of the first scripted demo, >= 0
     every_n: int = 10  #: demo augmentation: a keyframe episode starts every this many control steps, >= 1
+    #: each augmented episode but frame 0's stops after this many keyframes, >= 0; 0 = runs to the demo's end (the
+    #: authors'), 1 = every distinct keyframe jump stored once (long demos: their first keyframes sampled as often)
+    chain_keyframes: int = 0
 
     def __post_init__(self) -> None:
-        at_least(self, 0, "episodes", "seed")
+        at_least(self, 0, "episodes", "seed", "chain_keyframes")
         at_least(self, 1, "every_n")
         non_empty(self, "directory")
 

@@ -114,7 +114,7 @@ def demo_source(config: RunConfig, ctx: RoleContext) -> int:
             for path in sorted(Path(partial).glob("*.mcap")):
                 os.replace(path, directory / path.name)
     return run(DemoSourceSetup(directory, config.actor, every_n=config.demos.every_n, limit=config.demos.episodes,
-                               depths=config.qattention.depths), ctx)
+                               depths=config.qattention.depths, chain_keyframes=config.demos.chain_keyframes), ctx)
 
 
 def robot(config: RunConfig, ctx: RoleContext) -> int:

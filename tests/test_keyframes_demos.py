@@ -48,6 +48,22 @@ def test_operator_keyframes_replace_discovery_and_drive_augmentation():
     assert np.allclose(episodes[0].actions[:, 0], [0.7, 1.0]) and episodes[0].rewards.tolist() == [0.0, 100.0]
 
 
+def test_cut_chains_store_each_keyframe_jump_once_and_leave_the_rest_to_frame_zeros_chain():
+    observations = _jittery_demo().observations  # keyframes 3, 7, 10; episodes from frames 0, 2, 4, 6, 8
+    full = demo_to_transitions(observations, [3, 7, 10], every_n=2)
+    assert [len(e.actions) for e in full] == [3, 3, 2, 2, 1]  # the authors': every chain runs to the end
+    cut = demo_to_transitions(observations, [3, 7, 10], every_n=2, chain_keyframes=1)
+    assert [len(e.actions) for e in cut] == [3, 1, 1, 1, 1]
+    assert cut[0].rewards.tolist() == [0.0, 0.0, 100.0] and cut[0].terminals.tolist() == [False, False, True]
+    # a cut chain ends unfinished: no reward, no terminal, so the learner bootstraps from the keyframe it reaches
+    assert cut[1].rewards.tolist() == [0.0] and not cut[1].terminals[0]
+    assert np.allclose(cut[1].actions[:, 0], [0.3]) and np.allclose(cut[2].actions[:, 0], [0.7])
+    assert cut[4].rewards.tolist() == [100.0] and cut[4].terminals[0]  # its one jump ends the demo: finished
+    # the first keyframe's share of the stored jumps: 2 of 11 in full chains, 2 of 7 cut
+    targets = [[a[0] for a in e.actions] for e in cut]
+    assert sum(t.count(np.float32(0.3)) for t in targets) == 2 and sum(map(len, targets)) == 7
+
+
 def test_the_demo_source_learns_from_the_operators_keyframes_else_discovers_them(tmp_path):
     from actors.demo_source import demo_episodes
 

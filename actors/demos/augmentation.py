@@ -4,6 +4,15 @@ From every ``every_n``-th frame i, the agent "jumps" to each later keyframe in t
 ... -> kf_last. The action of a step is the next keyframe's gripper pose + gripper state; the reward
 is 0 except the last step (100, terminal). Step counters restart at 0 in every augmented episode so
 the time feature matches live episodes (the reference's intent).
+
+The chains repeat one another: from frame i past a keyframe, every jump but the first is one that frame 0's
+chain already holds (the same observations; only the step counter differs). So a demo's later keyframes are
+sampled as often as the augmented episodes that reach them, and its first ones rarely: put_item_in_drawer's
+nine keyframes in ~160 frames give its first keyframe 5 % of a demo's transitions, against 25 % in
+open_drawer's three keyframes in ~70 frames. ``chain_keyframes`` = k cuts each chain but frame 0's after its
+first k jumps; a cut chain ends unfinished (no terminal, no reward), so the learner bootstraps its last jump
+from the Q-values at the keyframe it reaches, as it does frame 0's. With k = 1 each distinct jump is stored
+once, and a keyframe is sampled in proportion to the frames leading to it.
 """
 
 from __future__ import annotations
@@ -34,14 +43,21 @@ def keyframe_action(obs: Observation) -> np.ndarray:
 
 
 def demo_to_transitions(observations: Sequence[Observation], keyframes: Sequence[int], every_n: int = 10,
-                        augment: bool = True, success_reward: float = SUCCESS_REWARD) -> list[DemoEpisode]:
-    """The augmented episodes of one demo (only the one from frame 0 when ``augment`` is False)."""
+                        augment: bool = True, success_reward: float = SUCCESS_REWARD,
+                        chain_keyframes: int = 0) -> list[DemoEpisode]:
+    """The augmented episodes of one demo (only the one from frame 0 when ``augment`` is False).
+
+    ``chain_keyframes`` > 0 cuts every chain but frame 0's after that many jumps (0: never, as the authors).
+    """
     episodes = []
     starts = range(0, len(observations) - 1, every_n) if augment else [0]
     for i in starts:
         remaining = [k for k in keyframes if k > i]
         if not remaining:
             break
+        finished = i == 0 or not chain_keyframes or len(remaining) <= chain_keyframes
+        if not finished:
+            remaining = remaining[:chain_keyframes]
         frames = [i, *remaining]
         obs = []
         for t, f in enumerate(frames):
@@ -51,8 +67,9 @@ def demo_to_transitions(observations: Sequence[Observation], keyframes: Sequence
         actions = np.stack([keyframe_action(observations[k]) for k in remaining])
         n = len(remaining)
         rewards = np.zeros(n, dtype=np.float32)
-        rewards[-1] = success_reward
         terminals = np.zeros(n, dtype=bool)
-        terminals[-1] = True
+        if finished:
+            rewards[-1] = success_reward
+            terminals[-1] = True
         episodes.append(DemoEpisode(obs, actions, rewards, terminals))
     return episodes
