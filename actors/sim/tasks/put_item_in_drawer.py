@@ -20,9 +20,10 @@ OPENED = 0.2
 #: 1) the last depth's cube there held 5-7 occupied voxels, at 5 cm 76-79 (bench/cube_occupancy.py, (8,8,8),
 #: shoulder and wrist cameras), and the scripted demos still succeed 100 of 100 (98 at revision 1).
 BLOCK_APPROACH = 0.05
-#: The handle's approach and the lift off it stay 10 cm, though the last depth's cube at the approach holds 0-2
-#: occupied voxels: at 5 cm the demos fell to 93 of 100 (the drawer not pulled open) and 96 of 100.
-APPROACH = 0.1
+#: The handle's approach and the lift off it stay open_drawer's 10 cm (chest.APPROACH_DISTANCE), though the last
+#: depth's cube at the approach holds 0-2 occupied voxels: at 5 cm the demos fell to 93 of 100 (the drawer not
+#: pulled open) and 96 of 100.
+APPROACH = chest.APPROACH_DISTANCE
 #: The turn over the open drawer stays 15 cm above the drop: at 5 cm the IK, started from the lifted block's
 #: joints, now and then found no collision-free pose there or at the drop; at 10 cm its cube sees no more of the
 #: drawer (0 occupied voxels at the last depth) than at 15 (0-27).
