@@ -194,7 +194,9 @@ LEVERS["release-skip-repeats-replay-8g"] = (*LEVERS["release-skip-repeats"], REP
 #: put_item_in_drawer's entry with each demo's keyframe jumps stored once (demos.chain_keyframes=1): the authors'
 #: augmentation runs every chain to the demo's end, so the task's nine keyframes in ~160 frames gave its first one,
 #: the handle's approach, 5 % of the demo transitions (open_drawer's: 25 %), and the first decision was the one its
-#: seed 2 got wrong (23 % of late evaluation episodes ended there, the pose at the handle). Cut, 21 %.
+#: seed 2 got wrong (23 % of late evaluation episodes ended there, the pose at the handle). Cut, 16-21 %. (Seed 2,
+#: AVX2-only host: 30 % at best in 98.5 min / 4,400 updates; first poses fixed, 68 % of its episodes then stopped at
+#: the handle's grasp, 4 cm into the drawer front: BENCHMARKS.md.)
 LEVERS["drawer-timed-jumps-once"] = (*LEVERS["drawer-entry-timed"], "demos.chain_keyframes=1")
 
 
