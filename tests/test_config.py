@@ -195,6 +195,7 @@ def test_bad_values_are_rejected_with_their_path():
         ("run.runs_dir=''", "run.runs_dir must not be empty"),
         ("demos.episodes=-1", "demos.episodes must be >= 0"),
         ("demos.every_n=0", "demos.every_n must be >= 1 (got 0)"),
+        ("demos.chain_keyframes=-1", "demos.chain_keyframes must be >= 0 (got -1)"),
         ("replay.curve_certificate=/keys/replay.key_secret",
          "replay.curve_clients must be set too when curve_certificate is"),
         ("learner.curve_server_key=/keys/replay.key",
