@@ -54,16 +54,27 @@ def endings(paths: list[Path]) -> dict[str, object]:
             "unreachable_first": unreachable_first}
 
 
+def recorded_episodes(run_dir: Path) -> dict[int, list[Path]]:
+    """The evaluator's episode files of a run, by weights version (bench/greedy_keyframes.py reads them too)."""
+    by_version: dict[int, list[Path]] = defaultdict(list)
+    for path in sorted((run_dir / "eval").glob("v*-seed*.mcap")):
+        match = NAME.search(path.name)
+        if match:
+            by_version[int(match.group(1))].append(path)
+    return dict(by_version)
+
+
+def episode_seed(path: Path) -> int:
+    """The scene seed an evaluation episode file is named with."""
+    return int(NAME.search(path.name).group(2))
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dir", type=Path, help="runs/<run-id> (its eval/ folder holds the episodes)")
     parser.add_argument("--last", type=int, default=0, help="only the newest N versions (0: all)")
     args = parser.parse_args()
-    by_version: dict[int, list[Path]] = defaultdict(list)
-    for path in sorted((args.run_dir / "eval").glob("v*-seed*.mcap")):
-        match = NAME.search(path.name)
-        if match:
-            by_version[int(match.group(1))].append(path)
+    by_version = recorded_episodes(args.run_dir)
     if not by_version:
         print(f"no evaluation episodes under {args.run_dir / 'eval'} (actor.record_eval off?)", file=sys.stderr)
         return 1

@@ -17,7 +17,6 @@ long task shows here where it stops: at an empty-air approach, or one voxel too 
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -25,18 +24,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from protocol.episode_file import DemoFileError, read_episode_view  # noqa: E402
+from eval_endings import episode_seed, recorded_episodes  # noqa: E402  (bench/eval_endings.py)
 
-NAME = re.compile(r"v(\d+)-seed(\d+)\.mcap$")
-
-
-def quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """3x3 rotation of a unit quaternion xyzw."""
-    x, y, z, w = np.asarray(q, float) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+from dashboard.episodes import quaternion_matrix  # noqa: E402
+from protocol.episode_file import DemoFileError, EpisodeView, read_episode_view  # noqa: E402
 
 
 def rotation_deg(q1: np.ndarray, q2: np.ndarray) -> float:
@@ -76,24 +69,22 @@ def scene_keyframes(task: str, seeds: list[int]) -> dict[int, np.ndarray]:
         env.close()
 
 
-def read_episodes(run_dir: Path, from_version: int = 0) -> list[tuple[int, object]]:
+def read_episodes(run_dir: Path, from_version: int = 0) -> list[tuple[int, EpisodeView]]:
     """(seed, episode view) of every recorded evaluation episode with next-best poses, from ``from_version`` on."""
     episodes = []
-    for path in sorted((run_dir / "eval").glob("v*-seed*.mcap")):
-        match = NAME.search(path.name)
-        if not match or int(match.group(1)) < from_version:
-            continue
-        try:
-            ep = read_episode_view(path)
-        except DemoFileError as exc:
-            print(f"  {path.name}: {exc}", file=sys.stderr)
-            continue
-        if len(ep.actions):
-            episodes.append((int(match.group(2)), ep))
+    for version, paths in sorted(recorded_episodes(run_dir).items()):
+        for path in paths if version >= from_version else ():
+            try:
+                ep = read_episode_view(path)
+            except DemoFileError as exc:
+                print(f"  {path.name}: {exc}", file=sys.stderr)
+                continue
+            if len(ep.actions):
+                episodes.append((episode_seed(path), ep))
     return episodes
 
 
-def by_keyframe(episodes: list[tuple[int, object]]) -> tuple[Counter, dict[int, dict[str, list]]]:
+def by_keyframe(episodes: list[tuple[int, EpisodeView]]) -> tuple[Counter, dict[int, dict[str, list]]]:
     """The episodes' (ending, keyframe sequence) counts, and per keyframe index the poses nearest it as
     (x, y, z offset in cm, rotation in degrees), split into those that ended their episode unreachable
     ("stopped") and the rest ("went on")."""
